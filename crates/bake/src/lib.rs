@@ -1,0 +1,4 @@
+//! `dnr-bake`: trains a neural texture and renderer from a capture folder and exports an
+//! `EXT_deferred_neural_rendering` asset.
+//!
+//! Uses the runtime's forward kernels so what it optimises is what the runtime draws.
