@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# The one command that runs every test (README quick start, .ci/run).
+#
+# Installs what the tests need beyond cargo, idempotently, under .tools/ (gitignored):
+#   - the Khronos glTF-Validator (npm `gltf-validator`),
+#   - the reference OpenEXR library (PyPI `OpenEXR`) and `jsonschema` for the spec examples.
+# Then runs the Rust tests and the cross-implementation checks on samples/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+tools=$root/.tools
+export CARGO_TERM_COLOR=never
+
+step() { printf '\n== %s\n' "$*"; }
+
+step "tools"
+if [ ! -f "$tools/node/node_modules/gltf-validator/package.json" ]; then
+  npm install --prefix "$tools/node" --no-audit --no-fund --loglevel=error gltf-validator@2.0.0-dev.3.10
+fi
+if ! "$tools/venv/bin/python" -c 'import OpenEXR, numpy, jsonschema' 2>/dev/null; then
+  python3 -m venv "$tools/venv"
+  "$tools/venv/bin/pip" install -q --disable-pip-version-check "OpenEXR==3.5.3" numpy "jsonschema==4.26.0"
+fi
+
+step "cargo test (workspace)"
+mkdir -p target
+cargo test --workspace --no-fail-fast 2>&1 | tee "$root/target/cargo-test.log"
+
+step "release tests (bake end to end)"
+cargo test --release -p dnr-bake --test 'e2e_*' 2>&1 | tee -a "$root/target/cargo-test.log"
+
+step "Khronos glTF-Validator on samples/valid"
+NODE_PATH="$tools/node/node_modules" node tests/scripts/gltf_validator.mjs samples/valid
+
+step "reference OpenEXR decode of every level in samples/valid"
+"$tools/venv/bin/python" tests/scripts/check_exr.py samples/valid
+
+step "spec examples against the JSON Schema"
+"$tools/venv/bin/python" spec/EXT_deferred_neural_rendering/check_examples.py
+
+echo
+echo "all test steps passed"
