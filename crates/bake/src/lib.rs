@@ -2,3 +2,5 @@
 //! `EXT_deferred_neural_rendering` asset.
 //!
 //! Uses the runtime's forward kernels so what it optimises is what the runtime draws.
+
+pub mod capture;

@@ -1,7 +1,14 @@
 //! `dnr-runtime`: decodes and renders `EXT_deferred_neural_rendering` assets on the CPU.
 //!
 //! What a third-party viewer links. Must not depend on training code or heavy dependencies.
-#![forbid(unsafe_code)]
+// `unsafe` is denied everywhere except the SIMD micro-kernels in `nn::gemm`.
+#![deny(unsafe_code)]
 
 pub mod camera;
 pub mod scene;
+pub mod gbuffer;
+pub mod raster;
+pub mod sh;
+pub mod texture;
+pub mod network;
+pub mod nn;

@@ -1,0 +1,287 @@
+//! Image files of a capture: path resolution (extension-less names), header probing and
+//! decoding to sRGB-encoded float RGB plus an alpha mask.
+//!
+//! Colour semantics: training and evaluation work on sRGB-encoded values in [0, 1] (what an
+//! 8-bit PNG stores / 255), so PNG and JPEG samples are only rescaled (8-bit / 255, 16-bit /
+//! 65535). EXR holds linear light with (by OpenEXR convention) premultiplied alpha: it is
+//! un-premultiplied, clamped to [0, 1] and sRGB-encoded, so an EXR capture and the PNG a
+//! tone-mapper-free export of it would give agree. Alpha is never encoded: it is coverage.
+//! Images without alpha get a mask of all ones.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use dnr_runtime::camera::Camera;
+
+use super::error::CaptureError;
+use super::transforms::Distortion;
+
+/// Extensions tried, in order, for a `file_path` that names no existing file.
+pub const TRIED_EXTENSIONS: [&str; 8] = ["png", "jpg", "jpeg", "exr", "PNG", "JPG", "JPEG", "EXR"];
+
+const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+
+/// A decoded image: `rgb` is HWC, sRGB-encoded, in [0, 1]; `alpha` is straight coverage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecodedImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// `height * width * 3` sRGB-encoded values, row 0 (top) first.
+    pub rgb: Vec<f32>,
+    /// `height * width` alpha values (all ones when the file has no alpha channel).
+    pub alpha: Vec<f32>,
+    /// Whether the file had an alpha channel.
+    pub has_alpha: bool,
+}
+
+/// The container a file holds, found from its first bytes (not its name).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ImageKind {
+    /// OpenEXR (linear).
+    Exr,
+    /// Anything the `image` crate reads (PNG, JPEG).
+    Raster,
+}
+
+/// Resolves `file_path` against the capture folder. When it names no file, the extensions of
+/// [`TRIED_EXTENSIONS`] are appended in turn (NeRF-synthetic writes `./train/r_0`).
+pub(crate) fn resolve_image_path(dir: &Path, file_path: &str) -> Option<PathBuf> {
+    let base = dir.join(file_path);
+    if base.is_file() {
+        return Some(base);
+    }
+    TRIED_EXTENSIONS.into_iter().find_map(|ext| {
+        let mut s = base.clone().into_os_string();
+        s.push(".");
+        s.push(ext);
+        let p = PathBuf::from(s);
+        p.is_file().then_some(p)
+    })
+}
+
+/// Reads only the header: the container kind and the size.
+pub(crate) fn probe(path: &Path) -> Result<(ImageKind, u32, u32), CaptureError> {
+    let mut magic = [0u8; 4];
+    let mut f = std::fs::File::open(path).map_err(|e| CaptureError::io(path, e))?;
+    let n = read_up_to(&mut f, &mut magic).map_err(|e| CaptureError::io(path, e))?;
+    if n == 4 && magic == EXR_MAGIC {
+        let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| decode_err(path, e))?;
+        let header = meta
+            .headers
+            .first()
+            .ok_or_else(|| decode_err(path, "EXR file has no layers"))?;
+        let size = header.layer_size;
+        let to_u32 = |v: usize| u32::try_from(v).map_err(|_| decode_err(path, "EXR layer too large"));
+        return Ok((ImageKind::Exr, to_u32(size.0)?, to_u32(size.1)?));
+    }
+    let reader = image::ImageReader::open(path)
+        .map_err(|e| CaptureError::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| CaptureError::io(path, e))?;
+    if reader.format().is_none() {
+        return Err(decode_err(path, "unknown image format (expected PNG, JPEG or EXR)"));
+    }
+    let (w, h) = reader.into_dimensions().map_err(|e| decode_err(path, e))?;
+    Ok((ImageKind::Raster, w, h))
+}
+
+fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..])? {
+            0 => break,
+            k => n += k,
+        }
+    }
+    Ok(n)
+}
+
+fn decode_err(path: &Path, e: impl std::fmt::Display) -> CaptureError {
+    CaptureError::ImageDecode { path: path.to_path_buf(), message: e.to_string() }
+}
+
+/// Checks an image size against `max_side`.
+pub(crate) fn check_side(path: &Path, w: u32, h: u32, max_side: u32) -> Result<(), CaptureError> {
+    if w == 0 || h == 0 {
+        return Err(decode_err(path, format!("image has zero size {w}x{h}")));
+    }
+    if w > max_side || h > max_side {
+        return Err(CaptureError::TooLarge {
+            path: path.to_path_buf(),
+            message: format!("image is {w}x{h}, over the limit of {max_side} pixels per side"),
+        });
+    }
+    Ok(())
+}
+
+/// Decodes a PNG (8/16-bit gray, gray+alpha, RGB, RGBA), JPEG or EXR file. The size is
+/// checked against `max_side` from the header before any pixel is decoded.
+pub fn decode_image(path: &Path, max_side: u32) -> Result<DecodedImage, CaptureError> {
+    let (kind, w, h) = probe(path)?;
+    check_side(path, w, h, max_side)?;
+    let img = match kind {
+        ImageKind::Exr => decode_exr(path)?,
+        ImageKind::Raster => decode_raster(path, max_side)?,
+    };
+    if (img.width, img.height) != (w, h) {
+        return Err(decode_err(path, "decoded size differs from the header"));
+    }
+    Ok(img)
+}
+
+fn decode_raster(path: &Path, max_side: u32) -> Result<DecodedImage, CaptureError> {
+    let mut reader = image::ImageReader::open(path)
+        .map_err(|e| CaptureError::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| CaptureError::io(path, e))?;
+    let mut limits = image::Limits::no_limits();
+    limits.max_image_width = Some(max_side);
+    limits.max_image_height = Some(max_side);
+    reader.limits(limits);
+    let img = reader.decode().map_err(|e| decode_err(path, e))?;
+    let has_alpha = img.color().has_alpha();
+    let (width, height) = (img.width(), img.height());
+    // 8-bit / 255 and 16-bit / 65535; gray is replicated; no colour-space change.
+    let rgba = img.into_rgba32f();
+    let n = width as usize * height as usize;
+    let mut rgb = Vec::with_capacity(n * 3);
+    let mut alpha = Vec::with_capacity(n);
+    for p in rgba.pixels() {
+        rgb.extend_from_slice(&[p.0[0], p.0[1], p.0[2]].map(|c| c.clamp(0.0, 1.0)));
+        alpha.push(if has_alpha { p.0[3].clamp(0.0, 1.0) } else { 1.0 });
+    }
+    Ok(DecodedImage { width, height, rgb, alpha, has_alpha })
+}
+
+struct ExrPixels {
+    width: usize,
+    has_alpha: bool,
+    rgba: Vec<f32>,
+}
+
+fn decode_exr(path: &Path) -> Result<DecodedImage, CaptureError> {
+    let image = exr::prelude::read_first_rgba_layer_from_file(
+        path,
+        |res, channels: &exr::image::RgbaChannels| ExrPixels {
+            width: res.0,
+            has_alpha: channels.3.is_some(),
+            rgba: vec![0.0; res.0 * res.1 * 4],
+        },
+        |px: &mut ExrPixels, pos, (r, g, b, a): (f32, f32, f32, f32)| {
+            let i = (pos.1 * px.width + pos.0) * 4;
+            px.rgba[i..i + 4].copy_from_slice(&[r, g, b, a]);
+        },
+    )
+    .map_err(|e| decode_err(path, e))?;
+    let size = image.layer_data.size;
+    let px = image.layer_data.channel_data.pixels;
+    let (width, height) = (
+        u32::try_from(size.0).map_err(|_| decode_err(path, "EXR too large"))?,
+        u32::try_from(size.1).map_err(|_| decode_err(path, "EXR too large"))?,
+    );
+    let n = size.0 * size.1;
+    let mut rgb = Vec::with_capacity(n * 3);
+    let mut alpha = Vec::with_capacity(n);
+    for p in px.rgba.chunks_exact(4) {
+        let a = if px.has_alpha { sanitize(p[3]).clamp(0.0, 1.0) } else { 1.0 };
+        // Un-premultiply; fully transparent pixels keep their (zero) colour.
+        let inv = if px.has_alpha && a > 1e-6 { 1.0 / a } else { 1.0 };
+        for &c in &p[..3] {
+            rgb.push(linear_to_srgb(sanitize(c) * inv));
+        }
+        alpha.push(a);
+    }
+    Ok(DecodedImage { width, height, rgb, alpha, has_alpha: px.has_alpha })
+}
+
+fn sanitize(x: f32) -> f32 {
+    if x.is_finite() {
+        x
+    } else if x == f32::INFINITY {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// sRGB transfer function (IEC 61966-2-1) after clamping to [0, 1].
+pub fn linear_to_srgb(x: f32) -> f32 {
+    let x = x.clamp(0.0, 1.0);
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Inverse of [`linear_to_srgb`] on [0, 1].
+pub fn srgb_to_linear(x: f32) -> f32 {
+    let x = x.clamp(0.0, 1.0);
+    if x <= 0.040_45 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Resamples a distorted photograph to the ideal pinhole `camera` (same intrinsics, same
+/// size): each output pixel centre is pushed through the OpenCV forward model and the source
+/// is sampled bilinearly there (clamped at the border), with colour premultiplied by alpha
+/// while interpolating so the background does not bleed into the object.
+pub(crate) fn undistort(img: &DecodedImage, camera: &Camera, d: &Distortion) -> DecodedImage {
+    let (w, h) = (img.width as usize, img.height as usize);
+    let mut rgb = vec![0.0f32; w * h * 3];
+    let mut alpha = vec![0.0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let xn = (x as f32 + 0.5 - camera.cx) / camera.fx;
+            let yn = (y as f32 + 0.5 - camera.cy) / camera.fy;
+            let (xd, yd) = d.distort(xn, yn);
+            // Back to index space (pixel centres at integers).
+            let sx = (camera.fx * xd + camera.cx - 0.5).clamp(0.0, (w - 1) as f32);
+            let sy = (camera.fy * yd + camera.cy - 0.5).clamp(0.0, (h - 1) as f32);
+            let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
+            let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+            let (fx, fy) = (sx - x0 as f32, sy - y0 as f32);
+            let taps = [
+                (x0, y0, (1.0 - fx) * (1.0 - fy)),
+                (x1, y0, fx * (1.0 - fy)),
+                (x0, y1, (1.0 - fx) * fy),
+                (x1, y1, fx * fy),
+            ];
+            let mut acc = [0.0f32; 4];
+            for (tx, ty, wt) in taps {
+                let i = ty * w + tx;
+                let a = img.alpha[i];
+                for c in 0..3 {
+                    acc[c] += wt * a * img.rgb[i * 3 + c];
+                }
+                acc[3] += wt * a;
+            }
+            let o = y * w + x;
+            alpha[o] = acc[3];
+            for c in 0..3 {
+                rgb[o * 3 + c] = if acc[3] > 1e-6 { (acc[c] / acc[3]).clamp(0.0, 1.0) } else { 0.0 };
+            }
+        }
+    }
+    DecodedImage { width: img.width, height: img.height, rgb, alpha, has_alpha: img.has_alpha }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trip_and_anchors() {
+        assert_eq!(linear_to_srgb(0.0), 0.0);
+        assert!((linear_to_srgb(1.0) - 1.0).abs() < 1e-6);
+        assert!((linear_to_srgb(0.18) - 0.4613).abs() < 1e-3);
+        for i in 0..=100 {
+            let x = i as f32 / 100.0;
+            assert!((srgb_to_linear(linear_to_srgb(x)) - x).abs() < 1e-5);
+        }
+    }
+}

@@ -1,0 +1,145 @@
+//! Training configuration: presets and the explicit overrides that refine them.
+
+use serde::Serialize;
+
+/// Which renderer architecture to train.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub enum Arch {
+    /// Texture only: channels 0..2 are the colour.
+    None,
+    /// Per-pixel MLP.
+    Mlp,
+    /// The paper's U-Net.
+    Unet,
+}
+
+impl std::str::FromStr for Arch {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => Ok(Arch::None),
+            "mlp" => Ok(Arch::Mlp),
+            "unet" => Ok(Arch::Unet),
+            _ => Err(format!("unknown architecture '{s}' (expected none, mlp or unet)")),
+        }
+    }
+}
+
+/// Named starting points; every field can still be overridden.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub enum Preset {
+    /// CPU-sized, a useful asset from a tiny capture in under two minutes.
+    Fast,
+    /// The default trade-off.
+    Balanced,
+    /// Bigger texture and network, longer training.
+    Quality,
+    /// The paper's exact sizes: 512x512, 4 levels, 16 channels, U-Net 64..512.
+    Paper,
+}
+
+impl std::str::FromStr for Preset {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "fast" => Ok(Preset::Fast),
+            "balanced" => Ok(Preset::Balanced),
+            "quality" => Ok(Preset::Quality),
+            "paper" => Ok(Preset::Paper),
+            _ => Err(format!("unknown preset '{s}' (expected fast, balanced, quality or paper)")),
+        }
+    }
+}
+
+/// Everything that determines a bake (the report records it resolved).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct TrainConfig {
+    /// Preset the values started from.
+    pub preset: Preset,
+    /// Side of the finest texture level in texels.
+    pub resolution: u32,
+    /// Number of pyramid levels (each halves the side).
+    pub levels: u32,
+    /// Feature channels per texel.
+    pub channels: u32,
+    /// Whether channels 3..12 are modulated by the degree-2 SH basis of the view direction.
+    pub sh: bool,
+    /// Renderer architecture.
+    pub arch: Arch,
+    /// U-Net widths (or MLP hidden widths).
+    pub widths: Vec<u32>,
+    /// Side of the square training crop in pixels (0 = whole frame).
+    pub crop: u32,
+    /// Maximum optimisation steps.
+    pub steps: u64,
+    /// Adam learning rate of the network.
+    pub lr_net: f32,
+    /// Adam learning rate of the texture.
+    pub lr_tex: f32,
+    /// L2 regularisation strength: level k (0 = finest) gets `reg * (K-1-k)`.
+    pub reg: f32,
+    /// Weight of the mean-colour L1 loss on channels 0..2.
+    pub mean_colour_weight: f32,
+    /// Predict alpha (RGBA output) when the capture has masks.
+    pub alpha: bool,
+    /// Random seed (crops, initialisation).
+    pub seed: u64,
+    /// Worker threads (0 = all cores).
+    pub threads: usize,
+    /// Wall-clock budget in seconds for training (0 = none).
+    pub time_budget: f64,
+    /// Seconds between held-out evaluations (0 = only at the end).
+    pub eval_every: f64,
+}
+
+impl TrainConfig {
+    /// The configuration a preset starts from.
+    pub fn preset(preset: Preset) -> Self {
+        let base = TrainConfig {
+            preset,
+            resolution: 512,
+            levels: 4,
+            channels: 16,
+            sh: true,
+            arch: Arch::Unet,
+            widths: vec![16, 32, 64, 128, 128],
+            crop: 0,
+            steps: 20_000,
+            lr_net: 1e-3,
+            lr_tex: 1e-3,
+            reg: 1e-3,
+            mean_colour_weight: 1.0,
+            alpha: true,
+            seed: 1,
+            threads: 0,
+            time_budget: 0.0,
+            eval_every: 30.0,
+        };
+        match preset {
+            Preset::Fast => TrainConfig {
+                resolution: 256,
+                levels: 3,
+                widths: vec![8, 16, 32, 64],
+                steps: 3_000,
+                ..base
+            },
+            Preset::Balanced => base,
+            Preset::Quality => TrainConfig {
+                resolution: 1024,
+                levels: 5,
+                widths: vec![32, 64, 128, 256, 256],
+                steps: 60_000,
+                ..base
+            },
+            Preset::Paper => TrainConfig {
+                widths: vec![64, 128, 256, 512, 512],
+                alpha: false,
+                steps: 60_000,
+                ..base
+            },
+        }
+    }
+}

@@ -1,0 +1,105 @@
+//! Per-view training data, computed once: the runtime's G-buffer of the proxy mesh (uv in
+//! f32, coverage, view directions) and the target image, composited on white.
+
+use dnr_runtime::gbuffer::GBuffer;
+use dnr_runtime::raster::rasterize;
+use dnr_runtime::scene::Scene;
+use rayon::prelude::*;
+
+use crate::capture::Frame;
+
+/// One view ready for training or evaluation.
+#[derive(Clone, Debug)]
+pub struct View {
+    /// The frame's name (for reports).
+    pub name: String,
+    /// Rasterised proxy: uv, coverage, view directions (the same rasteriser the runtime draws
+    /// with, so training sees exactly what rendering will).
+    pub gbuf: GBuffer,
+    /// Target colour composited on white, planar (3 x H x W), sRGB-encoded [0,1].
+    pub target: Vec<f32>,
+    /// Target alpha (the capture's mask), H x W.
+    pub alpha: Vec<f32>,
+    /// Whether the capture gave a mask (alpha channel).
+    pub has_alpha: bool,
+}
+
+impl View {
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.gbuf.width
+    }
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.gbuf.height
+    }
+
+    /// Rasterises `scene` for `frame` and converts its image to planar targets.
+    pub fn new(scene: &Scene, frame: &Frame) -> View {
+        let gbuf = rasterize(scene, &frame.camera);
+        let n = gbuf.width * gbuf.height;
+        let mut target = vec![0.0f32; 3 * n];
+        for i in 0..n {
+            let a = frame.alpha[i].clamp(0.0, 1.0);
+            for c in 0..3 {
+                target[c * n + i] = frame.rgb[3 * i + c] * a + (1.0 - a);
+            }
+        }
+        View {
+            name: frame.name.clone(),
+            gbuf,
+            target,
+            alpha: frame.alpha.clone(),
+            has_alpha: frame.has_alpha,
+        }
+    }
+
+    /// A crop `[x0, x0+w) x [y0, y0+h)` of this view (uv maps are cut, never resampled).
+    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> View {
+        let src_w = self.width();
+        let n_src = src_w * self.height();
+        let mut g = GBuffer::new(w, h);
+        let mut target = vec![0.0f32; 3 * w * h];
+        let mut alpha = vec![0.0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let s = (y0 + y) * src_w + x0 + x;
+                let d = y * w + x;
+                g.uv[d] = self.gbuf.uv[s];
+                g.coverage[d] = self.gbuf.coverage[s];
+                g.prim[d] = self.gbuf.prim[s];
+                g.tri[d] = self.gbuf.tri[s];
+                g.depth[d] = self.gbuf.depth[s];
+                g.view_dir[d] = self.gbuf.view_dir[s];
+                for c in 0..3 {
+                    target[c * w * h + d] = self.target[c * n_src + s];
+                }
+                alpha[d] = self.alpha[s];
+            }
+        }
+        View {
+            name: self.name.clone(),
+            gbuf: g,
+            target,
+            alpha,
+            has_alpha: self.has_alpha,
+        }
+    }
+
+    /// Fraction of pixels covered by the proxy or by the target mask.
+    pub fn object_fraction(&self) -> f32 {
+        let n = self.alpha.len().max(1);
+        let hits = self
+            .alpha
+            .iter()
+            .zip(&self.gbuf.coverage)
+            .filter(|(&a, &c)| a > 0.0 || c > 0.0)
+            .count();
+        hits as f32 / n as f32
+    }
+}
+
+/// Prepares all frames in parallel.
+pub fn prepare(scene: &Scene, frames: &[Frame]) -> Vec<View> {
+    frames.par_iter().map(|f| View::new(scene, f)).collect()
+}

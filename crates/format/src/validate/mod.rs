@@ -1,0 +1,810 @@
+//! The validator: reports every problem of an asset in one pass as [`Issue`]s with
+//! stable codes (table in [`codes`]) and JSON pointers.
+//!
+//! It never panics and never allocates beyond [`Limits`]: sizes are checked before
+//! decoding, and each check goes on after a failure wherever later checks still mean
+//! something. Pointers are built lazily, only when an issue is reported.
+
+pub mod codes;
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+use gltf_json as json;
+use serde::Serialize;
+use serde_json::Value;
+
+pub use codes::{code_info, CodeInfo, Severity, CODES};
+
+use crate::architecture::{architecture_tensors, renderer_problems};
+use crate::asset::{material_extension_value, root_extension_value};
+use crate::container::{self, parse_glb, parse_root, resolve_buffer, Problem};
+use crate::error::{Error, Result};
+use crate::exr_codec::{decode_level_halves, header_problems, read_level_header, LevelExpect};
+use crate::limits::Limits;
+use crate::model::{self, MaterialExtension, NeuralTexture, Renderer};
+use crate::EXTENSION_NAME;
+
+/// One problem found by the validator.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct Issue {
+    /// Stable code from [`CODES`].
+    pub code: &'static str,
+    /// Severity (from the code table).
+    pub severity: Severity,
+    /// JSON pointer (RFC 6901) to the offending value; empty for the whole file.
+    pub pointer: String,
+    /// Human-readable explanation.
+    pub message: String,
+}
+
+/// Everything the validator found.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct Report {
+    /// Issues in the order found.
+    pub issues: Vec<Issue>,
+}
+
+impl Report {
+    /// Number of issues of `severity`.
+    pub fn count(&self, severity: Severity) -> usize {
+        self.issues.iter().filter(|i| i.severity == severity).count()
+    }
+
+    /// Whether any issue is an error.
+    pub fn has_errors(&self) -> bool {
+        self.count(Severity::Error) > 0
+    }
+
+    /// The distinct codes reported, sorted.
+    pub fn codes(&self) -> BTreeSet<&'static str> {
+        self.issues.iter().map(|i| i.code).collect()
+    }
+}
+
+/// A JSON pointer under construction: a chain of segments on the stack, rendered to a
+/// string only when an issue is reported.
+#[derive(Clone, Copy, Debug)]
+pub struct Ptr<'a> {
+    parent: Option<&'a Ptr<'a>>,
+    seg: Seg<'a>,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Seg<'a> {
+    Root,
+    Key(&'a str),
+    Index(usize),
+}
+
+impl<'a> Ptr<'a> {
+    /// The document root (`""`).
+    pub const ROOT: Ptr<'static> = Ptr { parent: None, seg: Seg::Root };
+
+    /// Child `key` of this object.
+    pub fn key(&'a self, key: &'a str) -> Ptr<'a> {
+        Ptr { parent: Some(self), seg: Seg::Key(key) }
+    }
+
+    /// Element `index` of this array.
+    pub fn index(&'a self, index: usize) -> Ptr<'a> {
+        Ptr { parent: Some(self), seg: Seg::Index(index) }
+    }
+
+    /// Renders the pointer, escaping `~` and `/` as RFC 6901 requires.
+    pub fn render(&self) -> String {
+        let mut segs = Vec::new();
+        let mut at = Some(self);
+        while let Some(p) = at {
+            segs.push(p.seg);
+            at = p.parent;
+        }
+        let mut out = String::new();
+        for s in segs.iter().rev() {
+            match s {
+                Seg::Root => {}
+                Seg::Key(k) => {
+                    out.push('/');
+                    out.push_str(&k.replace('~', "~0").replace('/', "~1"));
+                }
+                Seg::Index(i) => {
+                    out.push('/');
+                    out.push_str(&i.to_string());
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Converts a gltf-json path (`meshes[0].attributes["POSITION"]`) to a JSON pointer.
+fn gltf_path_to_pointer(path: &str) -> String {
+    let path = path.split(" = ").next().unwrap_or(path);
+    let mut out = String::new();
+    let mut token = String::new();
+    let flush = |out: &mut String, token: &mut String| {
+        if !token.is_empty() {
+            out.push('/');
+            out.push_str(&token.replace('~', "~0").replace('/', "~1"));
+            token.clear();
+        }
+    };
+    let mut chars = path.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '.' => flush(&mut out, &mut token),
+            '[' => {
+                flush(&mut out, &mut token);
+                let quoted = chars.peek() == Some(&'"');
+                if quoted {
+                    chars.next();
+                }
+                for d in chars.by_ref() {
+                    if (quoted && d == '"') || (!quoted && d == ']') {
+                        break;
+                    }
+                    token.push(d);
+                }
+                if quoted {
+                    chars.next(); // the closing ']'
+                }
+                out.push('/');
+                out.push_str(&token.replace('~', "~0").replace('/', "~1"));
+                token.clear();
+            }
+            c => token.push(c),
+        }
+    }
+    flush(&mut out, &mut token);
+    out
+}
+
+struct Ctx<'l> {
+    limits: &'l Limits,
+    issues: Vec<Issue>,
+}
+
+impl Ctx<'_> {
+    fn report(&mut self, code: &'static str, ptr: &Ptr<'_>, message: impl Into<String>) {
+        self.report_at(code, ptr.render(), message);
+    }
+
+    fn report_at(&mut self, code: &'static str, pointer: String, message: impl Into<String>) {
+        let severity = code_info(code).map_or(Severity::Error, |c| c.severity);
+        self.issues.push(Issue { code, severity, pointer, message: message.into() });
+    }
+
+    fn problem(&mut self, p: Problem, ptr: &Ptr<'_>) {
+        self.report(p.code, ptr, p.error.to_string());
+    }
+}
+
+/// Validates a file (`.glb` or `.gltf`; external buffers resolve beside it).
+///
+/// `Err` only when the file itself cannot be read; every problem of its content is an
+/// issue in the report.
+pub fn validate_file(path: &Path, limits: &Limits) -> Result<Report> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.len() > limits.max_file_bytes {
+        let mut ctx = Ctx { limits, issues: Vec::new() };
+        ctx.report(
+            "LIMIT_EXCEEDED",
+            &Ptr::ROOT,
+            format!("file is {} bytes, above the limit of {}", meta.len(), limits.max_file_bytes),
+        );
+        return Ok(Report { issues: ctx.issues });
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    Ok(validate_slice(&bytes, path.parent(), limits))
+}
+
+/// Validates an asset held in memory; external buffers resolve against `base_dir`.
+pub fn validate_slice(bytes: &[u8], base_dir: Option<&Path>, limits: &Limits) -> Report {
+    let mut ctx = Ctx { limits, issues: Vec::new() };
+    validate_into(&mut ctx, bytes, base_dir);
+    Report { issues: ctx.issues }
+}
+
+fn validate_into(ctx: &mut Ctx<'_>, bytes: &[u8], base_dir: Option<&Path>) {
+    let root_ptr = Ptr::ROOT;
+    let (json_bytes, bin) = if container::is_glb(bytes) {
+        match parse_glb(bytes, ctx.limits) {
+            Ok(g) => (g.json, g.bin),
+            Err(p) => return ctx.problem(p, &root_ptr),
+        }
+    } else if bytes.len() as u64 > ctx.limits.max_json_bytes {
+        return ctx.report(
+            "LIMIT_EXCEEDED",
+            &root_ptr,
+            format!("JSON is {} bytes, above the limit of {}", bytes.len(), ctx.limits.max_json_bytes),
+        );
+    } else if !bytes.is_empty() && b"glTF".starts_with(bytes) {
+        return ctx.report("GLB_TRUNCATED", &root_ptr, "file ends inside the GLB magic");
+    } else {
+        (bytes, None)
+    };
+    let root = match parse_root(json_bytes) {
+        Ok(r) => r,
+        Err(p) => return ctx.problem(p, &root_ptr),
+    };
+    core_checks(ctx, &root);
+    let buffers: Vec<Option<Vec<u8>>> = (0..root.buffers.len())
+        .map(|i| match resolve_buffer(&root, i, bin, base_dir, ctx.limits) {
+            Ok(b) => Some(b),
+            Err(p) => {
+                let bp = root_ptr.key("buffers");
+                ctx.problem(p, &bp.index(i));
+                None
+            }
+        })
+        .collect();
+    range_checks(ctx, &root);
+    let doc = Doc { root: &root, buffers: &buffers };
+    extension_checks(ctx, &doc);
+}
+
+/// gltf-json's own validation: index ranges, enums, required fields.
+fn core_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
+    use json::validation::{Error as VErr, Validate};
+    let mut found: Vec<(String, VErr)> = Vec::new();
+    root.validate(root, json::Path::new, &mut |path: &dyn Fn() -> json::Path, e| {
+        found.push((path().as_str().to_string(), e));
+    });
+    for (path, e) in found {
+        if path.starts_with("extensionsRequired") {
+            continue; // our own rule below; other extensions are not ours to judge
+        }
+        let pointer = gltf_path_to_pointer(&path);
+        let (code, what) = match e {
+            VErr::IndexOutOfBounds => ("INDEX_OUT_OF_RANGE", "index refers to a missing object"),
+            VErr::Invalid => ("JSON_SCHEMA", "invalid value"),
+            VErr::Missing => ("JSON_SCHEMA", "required value is missing"),
+            VErr::Oversize => ("LIMIT_EXCEEDED", "size exceeds this platform's limits"),
+            VErr::Unsupported => ("JSON_SCHEMA", "unsupported value"),
+        };
+        ctx.report_at(code, pointer, format!("{what} at {path}"));
+    }
+}
+
+/// bufferViews within buffers, accessors within bufferViews.
+fn range_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
+    let views_ptr = Ptr::ROOT.key("bufferViews");
+    for (i, v) in root.buffer_views.iter().enumerate() {
+        let Some(buffer) = root.buffers.get(v.buffer.value()) else { continue };
+        let start = v.byte_offset.map_or(0, |o| o.0);
+        let end = start.checked_add(v.byte_length.0);
+        if end.is_none_or(|e| e > buffer.byte_length.0) {
+            ctx.report(
+                "BUFFER_VIEW_OUT_OF_RANGE",
+                &views_ptr.index(i),
+                format!(
+                    "bufferView {i} covers bytes {start}..{} of buffer {} with byteLength {}",
+                    start as u128 + v.byte_length.0 as u128,
+                    v.buffer.value(),
+                    buffer.byte_length.0
+                ),
+            );
+        }
+    }
+    let acc_ptr = Ptr::ROOT.key("accessors");
+    for (i, a) in root.accessors.iter().enumerate() {
+        let (Some(vi), json::validation::Checked::Valid(ct), json::validation::Checked::Valid(ty)) =
+            (a.buffer_view, &a.component_type, &a.type_)
+        else {
+            continue;
+        };
+        let Some(view) = root.buffer_views.get(vi.value()) else { continue };
+        if a.count.0 == 0 {
+            continue;
+        }
+        let elem = ct.0.size() as u128 * ty.multiplicity() as u128;
+        let stride = view.byte_stride.map_or(elem, |s| s.0 as u128);
+        let need = u128::from(a.byte_offset.map_or(0, |o| o.0)) + stride * (u128::from(a.count.0) - 1) + elem;
+        if need > u128::from(view.byte_length.0) {
+            ctx.report(
+                "BUFFER_VIEW_OUT_OF_RANGE",
+                &acc_ptr.index(i),
+                format!("accessor {i} needs {need} bytes, bufferView {} has {}", vi.value(), view.byte_length.0),
+            );
+        }
+    }
+}
+
+struct Doc<'a> {
+    root: &'a json::Root,
+    buffers: &'a [Option<Vec<u8>>],
+}
+
+impl Doc<'_> {
+    /// Bytes of a bufferView: `Ok(None)` if its buffer failed to load (already reported),
+    /// `Err` with a code when the index or range is bad.
+    fn view(&self, view: u32) -> std::result::Result<Option<(&[u8], u64)>, (&'static str, String)> {
+        let v = self
+            .root
+            .buffer_views
+            .get(view as usize)
+            .ok_or_else(|| ("INDEX_OUT_OF_RANGE", format!("bufferView {view} does not exist")))?;
+        let Some(Some(data)) = self.buffers.get(v.buffer.value()) else { return Ok(None) };
+        let offset = v.byte_offset.map_or(0, |o| o.0);
+        let slice = offset
+            .checked_add(v.byte_length.0)
+            .filter(|&e| self.root.buffers.get(v.buffer.value()).is_some_and(|b| e <= b.byte_length.0))
+            .and_then(|e| data.get(usize::try_from(offset).ok()?..usize::try_from(e).ok()?))
+            .ok_or_else(|| ("BUFFER_VIEW_OUT_OF_RANGE", format!("bufferView {view} reaches past its buffer")))?;
+        Ok(Some((slice, offset)))
+    }
+}
+
+fn deserialize<T: serde::de::DeserializeOwned>(v: &Value) -> std::result::Result<T, String> {
+    T::deserialize(v).map_err(|e| e.to_string())
+}
+
+fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
+    let root = doc.root;
+    let ext_value = root_extension_value(root);
+    let mat_values: Vec<(usize, &Value)> = root
+        .materials
+        .iter()
+        .enumerate()
+        .filter_map(|(i, m)| material_extension_value(m).map(|v| (i, v)))
+        .collect();
+    if ext_value.is_none() && mat_values.is_empty() {
+        return;
+    }
+    if !root.extensions_used.iter().any(|e| e == EXTENSION_NAME) {
+        ctx.report(
+            "EXTENSION_NOT_USED",
+            &Ptr::ROOT.key("extensionsUsed"),
+            format!("`{EXTENSION_NAME}` is used but not listed in extensionsUsed"),
+        );
+    }
+    let req = Ptr::ROOT.key("extensionsRequired");
+    for (i, e) in root.extensions_required.iter().enumerate() {
+        if e == EXTENSION_NAME {
+            ctx.report(
+                "EXTENSION_REQUIRED",
+                &req.index(i),
+                format!("`{EXTENSION_NAME}` must not be required: viewers without it show the fallback"),
+            );
+        }
+    }
+    let exts = Ptr::ROOT.key("extensions");
+    let ext_ptr = exts.key(EXTENSION_NAME);
+    let mut textures: Vec<Option<NeuralTexture>> = Vec::new();
+    let mut renderers: Vec<Option<Renderer>> = Vec::new();
+    match ext_value {
+        None => ctx.report(
+            "JSON_SCHEMA",
+            &exts,
+            format!("materials use `{EXTENSION_NAME}` but the root has no such extension object"),
+        ),
+        Some(Value::Object(obj)) => {
+            match obj.get("version").map(Value::as_u64) {
+                None | Some(None) => {
+                    return ctx.report("JSON_SCHEMA", &ext_ptr.key("version"), "version must be a non-negative integer")
+                }
+                Some(Some(v)) if v != u64::from(model::VERSION) => {
+                    return ctx.report(
+                        "VERSION_UNSUPPORTED",
+                        &ext_ptr.key("version"),
+                        format!("version {v} is not supported (this validator knows version {})", model::VERSION),
+                    )
+                }
+                _ => {}
+            }
+            textures = array_of(ctx, obj.get("neuralTextures"), &ext_ptr, "neuralTextures");
+            renderers = array_of(ctx, obj.get("renderers"), &ext_ptr, "renderers");
+        }
+        Some(_) => return ctx.report("JSON_SCHEMA", &ext_ptr, "the extension object must be an object"),
+    }
+    let tex_ptr = ext_ptr.key("neuralTextures");
+    let mut texel_values = 0u64;
+    for (i, t) in textures.iter().enumerate() {
+        if let Some(t) = t {
+            check_texture(ctx, doc, t, &tex_ptr.index(i), &mut texel_values);
+        }
+    }
+    let ren_ptr = ext_ptr.key("renderers");
+    let mut weight_elements = 0u64;
+    for (i, r) in renderers.iter().enumerate() {
+        if let Some(r) = r {
+            check_renderer(ctx, doc, r, &ren_ptr.index(i), &mut weight_elements);
+        }
+    }
+    check_materials(ctx, root, &mat_values, &textures, &renderers);
+}
+
+/// Deserializes each element of an optional array on its own, so one bad element does
+/// not hide the others.
+fn array_of<T: serde::de::DeserializeOwned>(
+    ctx: &mut Ctx<'_>,
+    v: Option<&Value>,
+    parent: &Ptr<'_>,
+    key: &str,
+) -> Vec<Option<T>> {
+    let ptr = parent.key(key);
+    match v {
+        None => Vec::new(),
+        Some(Value::Array(items)) => items
+            .iter()
+            .enumerate()
+            .map(|(i, item)| match deserialize::<T>(item) {
+                Ok(t) => Some(t),
+                Err(e) => {
+                    ctx.report("JSON_SCHEMA", &ptr.index(i), e);
+                    None
+                }
+            })
+            .collect(),
+        Some(_) => {
+            ctx.report("JSON_SCHEMA", &ptr, format!("{key} must be an array"));
+            Vec::new()
+        }
+    }
+}
+
+fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<'_>, texel_values: &mut u64) {
+    let limits = ctx.limits;
+    let mut channels_ok = true;
+    if t.channels == 0 {
+        ctx.report("TEXTURE_CHANNELS_RANGE", &ptr.key("channels"), "channels must be at least 1");
+        channels_ok = false;
+    } else if t.channels > limits.max_channels {
+        ctx.report(
+            "LIMIT_EXCEEDED",
+            &ptr.key("channels"),
+            format!("{} channels, above the limit of {}", t.channels, limits.max_channels),
+        );
+        channels_ok = false;
+    }
+    if let Some(s) = t.sampler {
+        if s as usize >= doc.root.samplers.len() {
+            ctx.report("INDEX_OUT_OF_RANGE", &ptr.key("sampler"), format!("sampler {s} does not exist"));
+        }
+    }
+    if let Some(vd) = &t.view_dependence {
+        let vp = ptr.key("viewDependence");
+        if vd.basis != model::BASIS_SPHERICAL_HARMONICS {
+            ctx.report("SH_DEGREE_UNSUPPORTED", &vp.key("basis"), format!("basis `{}` is not sphericalHarmonics", vd.basis));
+        } else if vd.degree > 3 {
+            ctx.report("SH_DEGREE_UNSUPPORTED", &vp.key("degree"), format!("degree {} is above 3", vd.degree));
+        } else if u64::from(vd.first_channel) + vd.coefficient_count() > u64::from(t.channels) {
+            ctx.report(
+                "SH_CHANNELS_OUT_OF_RANGE",
+                &vp.key("firstChannel"),
+                format!(
+                    "channels {}..{} are modulated but the texture has {}",
+                    vd.first_channel,
+                    u64::from(vd.first_channel) + vd.coefficient_count(),
+                    t.channels
+                ),
+            );
+        }
+    }
+    let lp = ptr.key("levels");
+    if t.levels.is_empty() {
+        ctx.report("TEXTURE_NO_LEVELS", &lp, "a neural texture needs at least one level");
+        return;
+    }
+    if t.levels.len() as u64 > u64::from(limits.max_levels) {
+        ctx.report(
+            "LIMIT_EXCEEDED",
+            &lp,
+            format!("{} levels, above the limit of {}", t.levels.len(), limits.max_levels),
+        );
+        return;
+    }
+    let mut prev: Option<(u32, u32)> = None;
+    for (li, l) in t.levels.iter().enumerate() {
+        let p = lp.index(li);
+        if l.mime_type != model::LEVEL_MIME_TYPE {
+            ctx.report("TEXTURE_MIME_TYPE", &p.key("mimeType"), format!("mimeType `{}`, expected `image/x-exr`", l.mime_type));
+        }
+        if l.width == 0 || l.height == 0 {
+            ctx.report("JSON_SCHEMA", &p, format!("level size {}x{} has a zero side", l.width, l.height));
+            continue;
+        }
+        if l.width.max(l.height) > limits.max_texture_side {
+            ctx.report(
+                "LIMIT_EXCEEDED",
+                &p,
+                format!("level {}x{} exceeds the side limit {}", l.width, l.height, limits.max_texture_side),
+            );
+            continue;
+        }
+        if let Some((pw, ph)) = prev {
+            if l.width > pw || l.height > ph {
+                ctx.report(
+                    "TEXTURE_LEVEL_ORDER",
+                    &p,
+                    format!("level {}x{} is larger than the level before it ({pw}x{ph})", l.width, l.height),
+                );
+            }
+        }
+        prev = Some((l.width, l.height));
+        let bytes = match doc.view(l.buffer_view) {
+            Ok(Some((b, _))) => b,
+            Ok(None) => continue,
+            Err((code, msg)) => {
+                ctx.report(code, &p.key("bufferView"), msg);
+                continue;
+            }
+        };
+        if !channels_ok || l.mime_type != model::LEVEL_MIME_TYPE {
+            continue;
+        }
+        let values = u64::from(l.width) * u64::from(l.height) * u64::from(t.channels);
+        *texel_values = texel_values.saturating_add(values);
+        if *texel_values > limits.max_total_texel_values {
+            ctx.report(
+                "LIMIT_EXCEEDED",
+                &p,
+                format!("{} texel values so far, above the limit of {}", texel_values, limits.max_total_texel_values),
+            );
+            continue;
+        }
+        let expect = LevelExpect { width: l.width, height: l.height, channels: t.channels };
+        let header = match read_level_header(bytes) {
+            Ok(h) => h,
+            Err(pr) => {
+                ctx.problem(pr, &p.key("bufferView"));
+                continue;
+            }
+        };
+        let problems = header_problems(&header, expect);
+        if !problems.is_empty() {
+            for pr in problems {
+                ctx.problem(pr, &p.key("bufferView"));
+            }
+            continue;
+        }
+        match decode_level_halves(bytes, expect, limits) {
+            Ok(h) => {
+                let bad = h.iter().filter(|v| !v.is_finite()).count();
+                if bad > 0 {
+                    ctx.report("EXR_NON_FINITE", &p.key("bufferView"), format!("{bad} half values are NaN or infinite"));
+                }
+            }
+            Err(pr) => ctx.problem(pr, &p.key("bufferView")),
+        }
+    }
+}
+
+fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>, weight_elements: &mut u64) {
+    let limits = ctx.limits;
+    for p in renderer_problems(r) {
+        let field = match p.code {
+            "RENDERER_UNKNOWN_ARCHITECTURE" => ptr.key("architecture"),
+            "RENDERER_OUTPUT_CHANNELS" => ptr.key("outputChannels"),
+            _ => *ptr,
+        };
+        ctx.problem(p, &field);
+    }
+    let required: Option<BTreeMap<String, Vec<u32>>> =
+        architecture_tensors(r).ok().map(|v| v.into_iter().collect());
+    let wp = ptr.key("weights");
+    if r.weights.len() as u64 > u64::from(limits.max_tensors) {
+        return ctx.report(
+            "LIMIT_EXCEEDED",
+            &wp,
+            format!("{} tensors, above the limit of {}", r.weights.len(), limits.max_tensors),
+        );
+    }
+    let mut seen = BTreeSet::new();
+    for (j, w) in r.weights.iter().enumerate() {
+        let p = wp.index(j);
+        if !seen.insert(w.name.as_str()) {
+            ctx.report("WEIGHTS_UNEXPECTED", &p.key("name"), format!("tensor `{}` appears more than once", w.name));
+        }
+        if let Some(req) = &required {
+            match req.get(&w.name) {
+                None => ctx.report(
+                    "WEIGHTS_UNEXPECTED",
+                    &p.key("name"),
+                    format!("architecture `{}` has no tensor `{}`", r.architecture, w.name),
+                ),
+                Some(shape) if *shape != w.shape => ctx.report(
+                    "WEIGHTS_SHAPE_MISMATCH",
+                    &p.key("shape"),
+                    format!("tensor `{}` has shape {:?}, the architecture requires {shape:?}", w.name, w.shape),
+                ),
+                Some(_) => {}
+            }
+        }
+        if w.shape.len() as u64 > u64::from(limits.max_tensor_rank) {
+            ctx.report("LIMIT_EXCEEDED", &p.key("shape"), format!("rank {} above the limit", w.shape.len()));
+            continue;
+        }
+        let Some(size) = w.dtype.size_of() else {
+            ctx.report("WEIGHTS_DTYPE_UNKNOWN", &p.key("dtype"), format!("dtype `{}` is not f16 or f32", w.dtype));
+            continue;
+        };
+        let Some(count) = w.element_count() else {
+            ctx.report("LIMIT_EXCEEDED", &p.key("shape"), "element count overflows");
+            continue;
+        };
+        *weight_elements = weight_elements.saturating_add(count);
+        if *weight_elements > limits.max_weight_elements {
+            ctx.report(
+                "LIMIT_EXCEEDED",
+                &p.key("shape"),
+                format!("{} weight elements so far, above the limit of {}", weight_elements, limits.max_weight_elements),
+            );
+            continue;
+        }
+        let (view, view_offset) = match doc.view(w.buffer_view) {
+            Ok(Some(v)) => v,
+            Ok(None) => continue,
+            Err((code, msg)) => {
+                ctx.report(code, &p.key("bufferView"), msg);
+                continue;
+            }
+        };
+        if w.byte_offset % 4 != 0 || view_offset % 4 != 0 {
+            ctx.report(
+                "WEIGHTS_MISALIGNED",
+                &p.key("byteOffset"),
+                format!(
+                    "tensor `{}` starts at byteOffset {} in a bufferView at buffer offset {view_offset}; both must be multiples of 4",
+                    w.name, w.byte_offset
+                ),
+            );
+        }
+        let len = count * size as u64; // count <= max_weight_elements, no overflow
+        let bytes = w
+            .byte_offset
+            .checked_add(len)
+            .filter(|&e| e <= view.len() as u64)
+            .and_then(|e| view.get(usize::try_from(w.byte_offset).ok()?..usize::try_from(e).ok()?));
+        let Some(bytes) = bytes else {
+            ctx.report(
+                "BUFFER_VIEW_OUT_OF_RANGE",
+                &p.key("byteOffset"),
+                format!(
+                    "tensor `{}` needs bytes {}..{} of a {}-byte bufferView",
+                    w.name,
+                    w.byte_offset,
+                    u128::from(w.byte_offset) + u128::from(len),
+                    view.len()
+                ),
+            );
+            continue;
+        };
+        let crc = crate::weights::crc32(bytes);
+        if crc != w.crc32 {
+            ctx.report(
+                "WEIGHTS_CHECKSUM_MISMATCH",
+                &p.key("crc32"),
+                format!("tensor `{}` has CRC-32 {crc}, crc32 says {}", w.name, w.crc32),
+            );
+        }
+        let non_finite = match w.dtype {
+            model::DType::F16 => bytes
+                .chunks_exact(2)
+                .filter(|b| !half::f16::from_le_bytes([b[0], b[1]]).is_finite())
+                .count(),
+            _ => bytes
+                .chunks_exact(4)
+                .filter(|b| !f32::from_le_bytes([b[0], b[1], b[2], b[3]]).is_finite())
+                .count(),
+        };
+        if non_finite > 0 {
+            ctx.report(
+                "WEIGHTS_NON_FINITE",
+                &p,
+                format!("tensor `{}` holds {non_finite} NaN or infinite values", w.name),
+            );
+        }
+    }
+    if let Some(req) = &required {
+        for (name, shape) in req {
+            if !seen.contains(name.as_str()) {
+                ctx.report(
+                    "WEIGHTS_MISSING",
+                    &wp,
+                    format!("architecture `{}` requires tensor `{name}` of shape {shape:?}", r.architecture),
+                );
+            }
+        }
+    }
+}
+
+fn check_materials(
+    ctx: &mut Ctx<'_>,
+    root: &json::Root,
+    mats: &[(usize, &Value)],
+    textures: &[Option<NeuralTexture>],
+    renderers: &[Option<Renderer>],
+) {
+    let mp = Ptr::ROOT.key("materials");
+    let mut tex_coord_of: BTreeMap<usize, u32> = BTreeMap::new();
+    for &(i, v) in mats {
+        let p = mp.index(i);
+        let ep = p.key("extensions");
+        let ep = ep.key(EXTENSION_NAME);
+        let m: MaterialExtension = match deserialize(v) {
+            Ok(m) => m,
+            Err(e) => {
+                ctx.report("JSON_SCHEMA", &ep, e);
+                continue;
+            }
+        };
+        tex_coord_of.insert(i, m.tex_coord);
+        if root.materials[i].pbr_metallic_roughness.base_color_texture.is_none() {
+            ctx.report(
+                "FALLBACK_MISSING",
+                &p.key("pbrMetallicRoughness"),
+                "a material with the extension needs a baseColorTexture fallback",
+            );
+        }
+        let t = textures.get(m.neural_texture as usize);
+        let r = renderers.get(m.renderer as usize);
+        if t.is_none() {
+            ctx.report("INDEX_OUT_OF_RANGE", &ep.key("neuralTexture"), format!("neural texture {} does not exist", m.neural_texture));
+        }
+        if r.is_none() {
+            ctx.report("INDEX_OUT_OF_RANGE", &ep.key("renderer"), format!("renderer {} does not exist", m.renderer));
+        }
+        if let (Some(Some(t)), Some(Some(r))) = (t, r) {
+            if t.channels != r.input_channels {
+                ctx.report(
+                    "RENDERER_INPUT_MISMATCH",
+                    &ep,
+                    format!(
+                        "neural texture {} has {} channels, renderer {} takes {}",
+                        m.neural_texture, t.channels, m.renderer, r.input_channels
+                    ),
+                );
+            }
+        }
+    }
+    let meshes = Ptr::ROOT.key("meshes");
+    for (mi, mesh) in root.meshes.iter().enumerate() {
+        let mp = meshes.index(mi);
+        let pp = mp.key("primitives");
+        for (pi, prim) in mesh.primitives.iter().enumerate() {
+            let Some(n) = prim.material.and_then(|m| tex_coord_of.get(&m.value())) else { continue };
+            let has = prim
+                .attributes
+                .keys()
+                .any(|k| matches!(k, json::validation::Checked::Valid(json::mesh::Semantic::TexCoords(t)) if t == n));
+            if !has {
+                let ip = pp.index(pi);
+                ctx.report(
+                    "TEXCOORD_MISSING",
+                    &ip.key("attributes"),
+                    format!("the material's neural texture uses TEXCOORD_{n}, which this primitive lacks"),
+                );
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pointers() {
+        let r = Ptr::ROOT;
+        let a = r.key("extensions");
+        let b = a.key("a/b~c");
+        let c = b.index(3);
+        assert_eq!(c.render(), "/extensions/a~1b~0c/3");
+        assert_eq!(Ptr::ROOT.render(), "");
+        assert_eq!(
+            gltf_path_to_pointer("meshes[0].primitives[1].attributes[\"TEXCOORD_0\"]"),
+            "/meshes/0/primitives/1/attributes/TEXCOORD_0"
+        );
+        assert_eq!(gltf_path_to_pointer("scene"), "/scene");
+    }
+
+    #[test]
+    fn garbage_is_reported_not_panicked() {
+        let l = Limits::default();
+        for input in [&b""[..], b"{", b"glTF", b"glT", b"[]", b"{}", b"\xff\xfe"] {
+            let r = validate_slice(input, None, &l);
+            assert!(r.has_errors(), "{input:?}: {r:?}");
+        }
+    }
+}

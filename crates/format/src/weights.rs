@@ -1,0 +1,171 @@
+//! Low layer: weight tensors as little-endian `f16`/`f32`, row-major, CRC-32 checked.
+
+use half::f16;
+
+use crate::error::{Error, Result};
+use crate::limits::Limits;
+use crate::model::{DType, WeightTensor};
+
+/// A decoded tensor: `shape` and row-major `f32` data.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TensorF32 {
+    /// Shape, row-major (C order).
+    pub shape: Vec<u32>,
+    /// `product(shape)` values.
+    pub data: Vec<f32>,
+}
+
+impl TensorF32 {
+    /// A tensor, checking that `data` has `product(shape)` values.
+    pub fn new(shape: Vec<u32>, data: Vec<f32>) -> Result<Self> {
+        let n = element_count(&shape)?;
+        if n != data.len() as u64 {
+            return Err(Error::invalid(format!(
+                "tensor of shape {shape:?} needs {n} values, has {}",
+                data.len()
+            )));
+        }
+        Ok(TensorF32 { shape, data })
+    }
+}
+
+/// Product of a shape, `Invalid` on overflow.
+pub fn element_count(shape: &[u32]) -> Result<u64> {
+    shape
+        .iter()
+        .try_fold(1u64, |a, &d| a.checked_mul(u64::from(d)))
+        .ok_or_else(|| Error::invalid(format!("shape {shape:?} overflows")))
+}
+
+/// CRC-32/ISO-HDLC (zlib's `crc32`).
+pub fn crc32(bytes: &[u8]) -> u32 {
+    crc32fast::hash(bytes)
+}
+
+/// Encodes `data` as `dtype`, little-endian. Every value must be finite and, for `f16`,
+/// within the half range; the error names the tensor and the element.
+pub fn encode_tensor(name: &str, data: &[f32], dtype: &DType) -> Result<Vec<u8>> {
+    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(format!(
+            "tensor `{name}` element {i} is {}",
+            data[i]
+        )));
+    }
+    match dtype {
+        DType::F32 => Ok(data.iter().flat_map(|v| v.to_le_bytes()).collect()),
+        DType::F16 => {
+            if let Some(i) = data.iter().position(|v| v.abs() > crate::exr_codec::HALF_MAX) {
+                return Err(Error::invalid(format!(
+                    "tensor `{name}` element {i} is {}, beyond the f16 range",
+                    data[i]
+                )));
+            }
+            Ok(data
+                .iter()
+                .flat_map(|&v| f16::from_f32(v).to_le_bytes())
+                .collect())
+        }
+        DType::Unknown(s) => Err(Error::not_supported(format!("dtype `{s}`"))),
+    }
+}
+
+/// Decodes exactly `product(shape)` elements of `dtype` from the start of `bytes`,
+/// after checking the count against `limits.max_weight_elements`.
+pub fn decode_tensor(bytes: &[u8], shape: &[u32], dtype: &DType, limits: &Limits) -> Result<Vec<f32>> {
+    let size = dtype
+        .size_of()
+        .ok_or_else(|| Error::not_supported(format!("dtype `{dtype}`")))?;
+    let n = Limits::checked_len("tensor elements", element_count(shape)?, limits.max_weight_elements)?;
+    let len = n
+        .checked_mul(size)
+        .ok_or_else(|| Error::invalid("tensor byte length overflows"))?;
+    let bytes = bytes
+        .get(..len)
+        .ok_or_else(|| Error::invalid(format!("tensor needs {len} bytes, {} available", bytes.len())))?;
+    Ok(match dtype {
+        DType::F16 => bytes
+            .chunks_exact(2)
+            .map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32())
+            .collect(),
+        _ => bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+    })
+}
+
+/// Packs tensors one after another into one blob (each start 4-byte aligned, zero
+/// padding) and returns the blob and one descriptor per tensor, in input order, with
+/// `buffer_view` set to `buffer_view`.
+pub fn pack_tensors<'a>(
+    tensors: impl IntoIterator<Item = (&'a str, &'a TensorF32)>,
+    dtype: &DType,
+    buffer_view: u32,
+) -> Result<(Vec<u8>, Vec<WeightTensor>)> {
+    let mut blob = Vec::new();
+    let mut descriptors = Vec::new();
+    for (name, tensor) in tensors {
+        if element_count(&tensor.shape)? != tensor.data.len() as u64 {
+            return Err(Error::invalid(format!(
+                "tensor `{name}` of shape {:?} has {} values",
+                tensor.shape,
+                tensor.data.len()
+            )));
+        }
+        let bytes = encode_tensor(name, &tensor.data, dtype)?;
+        let offset = blob.len() as u64;
+        descriptors.push(WeightTensor {
+            name: name.to_string(),
+            shape: tensor.shape.clone(),
+            dtype: dtype.clone(),
+            buffer_view,
+            byte_offset: offset,
+            crc32: crc32(&bytes),
+            extensions: None,
+            extras: None,
+            others: Default::default(),
+        });
+        blob.extend_from_slice(&bytes);
+        blob.resize(blob.len().next_multiple_of(4), 0);
+    }
+    Ok((blob, descriptors))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crc_is_zlib() {
+        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
+    }
+
+    #[test]
+    fn round_trip_and_alignment() {
+        let a = TensorF32::new(vec![3], vec![1.0, -2.5, 0.125]).unwrap();
+        let b = TensorF32::new(vec![1, 2], vec![7.0, 8.0]).unwrap();
+        for dtype in [DType::F16, DType::F32] {
+            let (blob, d) = pack_tensors([("a", &a), ("b", &b)], &dtype, 5).unwrap();
+            assert_eq!(d[1].byte_offset % 4, 0);
+            for (desc, t) in d.iter().zip([&a, &b]) {
+                let at = &blob[desc.byte_offset as usize..];
+                let len = desc.byte_length().unwrap() as usize;
+                assert_eq!(crc32(&at[..len]), desc.crc32);
+                let back = decode_tensor(at, &desc.shape, &dtype, &Limits::default()).unwrap();
+                assert_eq!(back, t.data);
+            }
+        }
+    }
+
+    #[test]
+    fn range_checked_before_narrowing() {
+        assert!(encode_tensor("x", &[70000.0], &DType::F16).is_err());
+        assert!(encode_tensor("x", &[70000.0], &DType::F32).is_ok());
+        assert!(encode_tensor("x", &[f32::NAN], &DType::F32).is_err());
+        let tight = Limits { max_weight_elements: 2, ..Limits::default() };
+        assert!(matches!(
+            decode_tensor(&[0; 12], &[3], &DType::F32, &tight),
+            Err(Error::LimitExceeded { .. })
+        ));
+    }
+}

@@ -1,0 +1,289 @@
+//! 2-D convolution (square kernel, stride, zero padding; weights OIHW), as one GEMM whose B
+//! operand is the input read at shifted offsets.
+//!
+//! The input is rearranged once into *planes* with a row pitch; output pixel (y, x) is GEMM
+//! column `y * pitch + x`, and GEMM row `plane * taps + t` is plane `plane` read from offset
+//! `shift[t]`. Columns `x >= w_out` of each output row are junk and dropped by
+//! [`ConvLayout::finish`]. Three layouts:
+//! - [`LayoutKind::SpaceToDepth`] (kernel 4, stride 2, pad 1): the padded input split into its
+//!   four 2x2 phases (4 C planes), so the conv is a 2x2 stride-1 conv of those (4 taps).
+//! - [`LayoutKind::Padded`] (stride 1): the zero-padded input (C planes, k*k taps).
+//! - [`LayoutKind::Im2col`] (anything else): one plane per (c, ky, kx), one tap.
+
+use super::gemm::{gemm_nn, PackedA};
+use super::{NnError, Tensor};
+
+/// Geometry of a convolution with a square kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ConvGeom {
+    /// Input channels.
+    pub c_in: usize,
+    /// Output channels.
+    pub c_out: usize,
+    /// Kernel size (k x k).
+    pub k: usize,
+    /// Stride.
+    pub stride: usize,
+    /// Zero padding on every side.
+    pub pad: usize,
+}
+
+impl ConvGeom {
+    /// Output height and width for an `h x w` input.
+    pub fn out_size(&self, h: usize, w: usize) -> Result<(usize, usize), NnError> {
+        if self.k == 0 || self.stride == 0 {
+            return Err(NnError::Shape("conv kernel and stride must be positive".into()));
+        }
+        if h + 2 * self.pad < self.k || w + 2 * self.pad < self.k {
+            return Err(NnError::Shape(format!(
+                "conv input {h}x{w} with padding {} is smaller than kernel {}",
+                self.pad, self.k
+            )));
+        }
+        Ok(((h + 2 * self.pad - self.k) / self.stride + 1, (w + 2 * self.pad - self.k) / self.stride + 1))
+    }
+
+    /// Number of weight values (`c_out * c_in * k * k`).
+    pub fn weight_len(&self) -> usize {
+        self.c_out * self.c_in * self.k * self.k
+    }
+
+    /// Multiply-adds of one forward pass on an `h x w` input (bias excluded).
+    pub fn macs(&self, h: usize, w: usize) -> u64 {
+        match self.out_size(h, w) {
+            Ok((ho, wo)) => (ho * wo) as u64 * self.weight_len() as u64,
+            Err(_) => 0,
+        }
+    }
+
+    fn check(&self, x: &Tensor, w: &[f32], bias: Option<&[f32]>) -> Result<(), NnError> {
+        if x.c != self.c_in {
+            return Err(NnError::Shape(format!("conv expects {} input channels, got {}", self.c_in, x.c)));
+        }
+        if w.len() != self.weight_len() {
+            return Err(NnError::Shape(format!("conv weight needs {} values, got {}", self.weight_len(), w.len())));
+        }
+        if let Some(b) = bias {
+            if b.len() != self.c_out {
+                return Err(NnError::Shape(format!("conv bias needs {} values, got {}", self.c_out, b.len())));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How a [`ConvLayout`] arranges the input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LayoutKind {
+    /// Kernel 4, stride 2, padding 1: padded input split into 2x2 phases.
+    SpaceToDepth,
+    /// Stride 1: zero-padded input.
+    Padded,
+    /// Explicit im2col matrix.
+    Im2col,
+}
+
+/// The GEMM form of a convolution on one input size. See the module documentation.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConvLayout {
+    /// Convolution geometry.
+    pub geom: ConvGeom,
+    /// Input arrangement.
+    pub kind: LayoutKind,
+    /// Input height.
+    pub h_in: usize,
+    /// Input width.
+    pub w_in: usize,
+    /// Output height.
+    pub h_out: usize,
+    /// Output width.
+    pub w_out: usize,
+    /// Number of planes.
+    pub planes: usize,
+    /// Rows per plane.
+    pub plane_h: usize,
+    /// Row pitch of the planes and of the GEMM output.
+    pub pitch: usize,
+    /// Distance between plane starts (>= `plane_h * pitch`, with slack for the largest shift).
+    pub plane_stride: usize,
+    /// Offset of each tap within a plane.
+    pub shifts: Vec<usize>,
+    /// GEMM columns: `h_out * pitch`.
+    pub n: usize,
+}
+
+impl ConvLayout {
+    /// The layout of `geom` on an `h x w` input.
+    pub fn new(geom: ConvGeom, h: usize, w: usize) -> Result<Self, NnError> {
+        let (h_out, w_out) = geom.out_size(h, w)?;
+        let (kind, planes, plane_h, pitch, shifts) = if geom.k == 4 && geom.stride == 2 && geom.pad == 1 {
+            let pitch = w_out + 1;
+            (LayoutKind::SpaceToDepth, 4 * geom.c_in, h_out + 1, pitch, vec![0, 1, pitch, pitch + 1])
+        } else if geom.stride == 1 {
+            let pitch = w + 2 * geom.pad;
+            let shifts = (0..geom.k * geom.k).map(|t| (t / geom.k) * pitch + t % geom.k).collect();
+            (LayoutKind::Padded, geom.c_in, h + 2 * geom.pad, pitch, shifts)
+        } else {
+            (LayoutKind::Im2col, geom.c_in * geom.k * geom.k, h_out, w_out, vec![0])
+        };
+        let max_shift = shifts.iter().copied().max().unwrap_or(0);
+        let n = h_out * pitch;
+        // Reads reach `n - 1 + max_shift`; keep them inside the plane's own slot.
+        let plane_stride = (plane_h * pitch).max(n + max_shift);
+        Ok(ConvLayout { geom, kind, h_in: h, w_in: w, h_out, w_out, planes, plane_h, pitch, plane_stride, shifts, n })
+    }
+
+    /// Taps per plane.
+    pub fn taps(&self) -> usize {
+        self.shifts.len()
+    }
+
+    /// GEMM depth: `planes * taps` (= `c_in * k * k`).
+    pub fn gemm_k(&self) -> usize {
+        self.planes * self.taps()
+    }
+
+    /// Length of the buffer [`Self::gather`] fills.
+    pub fn buffer_len(&self) -> usize {
+        self.planes * self.plane_stride
+    }
+
+    /// Offset of every GEMM row (`plane * taps + t`) in the gathered buffer.
+    pub fn rows(&self) -> Vec<usize> {
+        let mut rows = Vec::with_capacity(self.gemm_k());
+        for p in 0..self.planes {
+            for &s in &self.shifts {
+                rows.push(p * self.plane_stride + s);
+            }
+        }
+        rows
+    }
+
+    /// Index within one output channel's OIHW weights (`(c * k + ky) * k + kx`) of GEMM row `kk`.
+    pub fn weight_index(&self, kk: usize) -> usize {
+        let k = self.geom.k;
+        let (p, t) = (kk / self.taps(), kk % self.taps());
+        let (c, ky, kx) = match self.kind {
+            LayoutKind::SpaceToDepth => {
+                let (c, a, b) = (p / 4, (p / 2) % 2, p % 2);
+                (c, 2 * (t / 2) + a, 2 * (t % 2) + b)
+            }
+            LayoutKind::Padded => (p, t / k, t % k),
+            LayoutKind::Im2col => (p / (k * k), (p / k) % k, p % k),
+        };
+        (c * k + ky) * k + kx
+    }
+
+    /// Packs OIHW weights as the GEMM's A operand (`c_out x gemm_k`).
+    pub fn pack_weights(&self, w: &[f32]) -> PackedA {
+        assert_eq!(w.len(), self.geom.weight_len(), "conv weights");
+        let per_o = self.geom.c_in * self.geom.k * self.geom.k;
+        let map: Vec<usize> = (0..self.gemm_k()).map(|kk| self.weight_index(kk)).collect();
+        PackedA::from_fn(self.geom.c_out, self.gemm_k(), |o, kk| w[o * per_o + map[kk]])
+    }
+
+    /// Input pixel (c, y, x) read by plane `p` at plane position (row, col), if any.
+    fn source(&self, p: usize, row: usize, col: usize) -> Option<(usize, usize, usize)> {
+        let g = &self.geom;
+        let (c, y, x) = match self.kind {
+            LayoutKind::SpaceToDepth => {
+                let (c, a, b) = (p / 4, (p / 2) % 2, p % 2);
+                (c, (2 * row + a) as isize - 1, (2 * col + b) as isize - 1)
+            }
+            LayoutKind::Padded => (p, row as isize - g.pad as isize, col as isize - g.pad as isize),
+            LayoutKind::Im2col => {
+                let (c, ky, kx) = (p / (g.k * g.k), (p / g.k) % g.k, p % g.k);
+                (c, (row * g.stride + ky) as isize - g.pad as isize, (col * g.stride + kx) as isize - g.pad as isize)
+            }
+        };
+        (y >= 0 && x >= 0 && (y as usize) < self.h_in && (x as usize) < self.w_in).then_some((c, y as usize, x as usize))
+    }
+
+    /// Plane width that holds data (`pitch`, or `w_out` for im2col).
+    fn plane_w(&self) -> usize {
+        self.pitch
+    }
+
+    /// Rearranges `x` into the GEMM's B buffer (zeros where the kernel reads padding).
+    pub fn gather(&self, x: &Tensor) -> Vec<f32> {
+        assert!(x.c == self.geom.c_in && x.h == self.h_in && x.w == self.w_in, "conv gather shape");
+        let mut buf = vec![0.0f32; self.buffer_len()];
+        let pw = self.plane_w();
+        match self.kind {
+            LayoutKind::Padded => {
+                let p = self.geom.pad;
+                for c in 0..x.c {
+                    let plane = &mut buf[c * self.plane_stride..];
+                    for y in 0..x.h {
+                        plane[(y + p) * pw + p..][..x.w].copy_from_slice(&x.data[(c * x.h + y) * x.w..][..x.w]);
+                    }
+                }
+            }
+            _ => {
+                for pl in 0..self.planes {
+                    let plane = &mut buf[pl * self.plane_stride..];
+                    for row in 0..self.plane_h {
+                        for col in 0..pw {
+                            if let Some((c, y, xx)) = self.source(pl, row, col) {
+                                plane[row * pw + col] = x.data[(c * x.h + y) * x.w + xx];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        buf
+    }
+
+    /// Adjoint of [`Self::gather`]: sums the gradient of the B buffer back onto the input
+    /// pixels (padding positions are dropped).
+    pub fn scatter(&self, dbuf: &[f32]) -> Tensor {
+        assert!(dbuf.len() >= self.buffer_len() - self.plane_stride + self.plane_h * self.plane_w());
+        let mut dx = Tensor::zeros(self.geom.c_in, self.h_in, self.w_in);
+        let pw = self.plane_w();
+        for pl in 0..self.planes {
+            let plane = &dbuf[pl * self.plane_stride..];
+            for row in 0..self.plane_h {
+                for col in 0..pw {
+                    if let Some((c, y, x)) = self.source(pl, row, col) {
+                        dx.data[(c * self.h_in + y) * self.w_in + x] += plane[row * pw + col];
+                    }
+                }
+            }
+        }
+        dx
+    }
+
+    /// Raw GEMM output (`c_out x n`, row stride `n`) of packed weights on a gathered buffer.
+    pub fn gemm(&self, a: &PackedA, buf: &[f32]) -> Vec<f32> {
+        let mut out = vec![0.0f32; self.geom.c_out * self.n];
+        gemm_nn(a, buf, &self.rows(), self.n, &mut out, self.n, false);
+        out
+    }
+
+    /// Drops the junk columns of the raw GEMM output and adds the bias.
+    pub fn finish(&self, raw: &[f32], bias: Option<&[f32]>) -> Tensor {
+        let (ho, wo) = (self.h_out, self.w_out);
+        let mut out = Tensor::zeros(self.geom.c_out, ho, wo);
+        for o in 0..self.geom.c_out {
+            let b = bias.map_or(0.0, |b| b[o]);
+            let src = &raw[o * self.n..(o + 1) * self.n];
+            let dst = out.plane_mut(o);
+            for y in 0..ho {
+                for (d, s) in dst[y * wo..(y + 1) * wo].iter_mut().zip(&src[y * self.pitch..]) {
+                    *d = s + b;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Convolution of `x` with OIHW weights `w` and optional bias.
+pub fn conv2d(x: &Tensor, w: &[f32], bias: Option<&[f32]>, geom: ConvGeom) -> Result<Tensor, NnError> {
+    geom.check(x, w, bias)?;
+    let layout = ConvLayout::new(geom, x.h, x.w)?;
+    let buf = layout.gather(x);
+    let raw = layout.gemm(&layout.pack_weights(w), &buf);
+    Ok(layout.finish(&raw, bias))
+}

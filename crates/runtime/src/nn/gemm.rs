@@ -1,0 +1,655 @@
+//! Single-precision matrix products shaped for convolutions: few output channels (M), many
+//! pixels (N).
+//!
+//! Two entry points:
+//! - [`gemm_nn`]: `C = A B` with A pre-packed ([`PackedA`], the weights) and B given as rows that
+//!   are each contiguous along N at arbitrary offsets into one buffer. A convolution passes the
+//!   planes of its (padded) input shifted by each kernel tap, so no im2col matrix is ever built.
+//! - [`gemm_nt`]: `C = A Bᵀ` with both operands given as rows contiguous along K (the pixels):
+//!   the weight gradient of a convolution, a dot product per (output, input, tap).
+//!
+//! Both split C into blocks that the rayon pool computes independently; every element of C is
+//! summed in the same order whatever the blocking or thread count, so results are bit-identical
+//! across runs and thread counts.
+//!
+//! This is the only module of the crate with `unsafe`: the AVX2+FMA micro-kernels (selected at
+//! run time when the CPU has them) use raw-pointer loads. Each has a safe scalar twin that
+//! [`set_force_scalar`] selects, so tests can run both.
+#![allow(unsafe_code)]
+
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Rows of A per micro-tile of [`gemm_nn`].
+pub const MR: usize = 6;
+/// Columns of B per micro-tile of [`gemm_nn`] (two 8-lane vectors).
+pub const NR: usize = 16;
+/// K block of [`gemm_nn`]: the B strip (KC x NR) stays in L1 across the M tiles.
+const KC: usize = 256;
+/// Columns of packed B per panel of [`gemm_nn`] (KC x NC floats, in L2).
+const NC: usize = 256;
+/// Rows of A per block of [`gemm_nn`] (MC x KC floats, in L2).
+const MC: usize = 72;
+/// Up to this many rows of A, [`gemm_nn`] reads B in place instead of packing it.
+const DIRECT_MAX_M: usize = 64;
+/// A rows per micro-tile of [`gemm_nt`].
+const RT: usize = 4;
+/// B rows per micro-tile of [`gemm_nt`].
+const CT: usize = 3;
+/// K block of [`gemm_nt`].
+const KC_NT: usize = 512;
+/// Below this many multiply-adds a product runs on the calling thread.
+const PARALLEL_MIN_MACS: usize = 1 << 19;
+
+static FORCE_SCALAR: AtomicBool = AtomicBool::new(false);
+
+/// Forces the portable scalar kernels (for tests of the safe path); `false` restores detection.
+pub fn set_force_scalar(on: bool) {
+    FORCE_SCALAR.store(on, Ordering::Relaxed);
+}
+
+/// Whether the AVX2+FMA kernels are in use.
+pub fn simd_active() -> bool {
+    !FORCE_SCALAR.load(Ordering::Relaxed) && cpu_has_avx2_fma()
+}
+
+fn cpu_has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The A operand of [`gemm_nn`], packed in panels of [`MR`] rows (`[tile][k][r]`, rows past M
+/// zero) so the micro-kernel reads it sequentially.
+#[derive(Clone, Debug)]
+pub struct PackedA {
+    m: usize,
+    k: usize,
+    data: Vec<f32>,
+}
+
+impl PackedA {
+    /// Packs the M x K matrix whose element (i, k) is `a[i * rs + k * cs]`.
+    pub fn new(m: usize, k: usize, a: &[f32], rs: usize, cs: usize) -> Self {
+        if m > 0 && k > 0 {
+            assert!((m - 1) * rs + (k - 1) * cs < a.len(), "PackedA: A out of bounds");
+        }
+        Self::from_fn(m, k, |i, kk| a[i * rs + kk * cs])
+    }
+
+    /// Packs the M x K matrix with element (i, k) = `f(i, k)`.
+    pub fn from_fn(m: usize, k: usize, f: impl Fn(usize, usize) -> f32) -> Self {
+        let tiles = m.div_ceil(MR);
+        let mut data = vec![0.0f32; tiles * k * MR];
+        for t in 0..tiles {
+            let panel = &mut data[t * k * MR..(t + 1) * k * MR];
+            for r in 0..MR.min(m - t * MR) {
+                let i = t * MR + r;
+                for kk in 0..k {
+                    panel[kk * MR + r] = f(i, kk);
+                }
+            }
+        }
+        PackedA { m, k, data }
+    }
+
+    /// Rows (M).
+    pub fn m(&self) -> usize {
+        self.m
+    }
+
+    /// Columns (K).
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// Panel of tile `t` for k in `k0..k0 + kc`.
+    fn panel(&self, t: usize, k0: usize, kc: usize) -> &[f32] {
+        &self.data[t * self.k * MR + k0 * MR..][..kc * MR]
+    }
+}
+
+/// A rectangle of C owned by one task: rows `i0..i0 + rows.len()`, columns `j0..j0 + width`.
+struct Block<'c> {
+    i0: usize,
+    j0: usize,
+    rows: Vec<&'c mut [f32]>,
+}
+
+/// Splits the first `m` rows (`n` columns each, stride `ldc`) of `c` into a grid of blocks
+/// with the given row and column boundaries.
+fn split_blocks<'c>(
+    c: &'c mut [f32],
+    ldc: usize,
+    m: usize,
+    n: usize,
+    row_bounds: &[usize],
+    col_bounds: &[usize],
+) -> Vec<Block<'c>> {
+    let ncb = col_bounds.len() - 1;
+    let mut per_col: Vec<Vec<&'c mut [f32]>> = (0..ncb).map(|_| Vec::with_capacity(m)).collect();
+    let mut rest = c;
+    for i in 0..m {
+        let take = if i + 1 < m { ldc } else { n };
+        let (row, tail) = std::mem::take(&mut rest).split_at_mut(take);
+        rest = tail;
+        let mut row = &mut row[..n];
+        for (cb, col) in per_col.iter_mut().enumerate() {
+            let w = col_bounds[cb + 1] - col_bounds[cb];
+            let (head, tail) = std::mem::take(&mut row).split_at_mut(w);
+            col.push(head);
+            row = tail;
+        }
+    }
+    let mut blocks = Vec::with_capacity(ncb * (row_bounds.len() - 1));
+    for (cb, col) in per_col.into_iter().enumerate() {
+        let mut it = col.into_iter();
+        for rb in 0..row_bounds.len() - 1 {
+            let cnt = row_bounds[rb + 1] - row_bounds[rb];
+            blocks.push(Block { i0: row_bounds[rb], j0: col_bounds[cb], rows: it.by_ref().take(cnt).collect() });
+        }
+    }
+    blocks
+}
+
+/// Boundaries `0, step, 2 step, .., total`.
+fn bounds(total: usize, step: usize) -> Vec<usize> {
+    let step = step.max(1);
+    let mut b: Vec<usize> = (0..total).step_by(step).collect();
+    b.push(total);
+    b
+}
+
+/// Chooses a grid for an `m x n` product: about four blocks per thread, columns split first in
+/// multiples of `nq`, rows in multiples of `mq` when columns run out.
+fn grid(m: usize, n: usize, macs: usize, mq: usize, nq: usize) -> (Vec<usize>, Vec<usize>) {
+    let threads = rayon::current_num_threads();
+    if threads <= 1 || macs < PARALLEL_MIN_MACS || m == 0 || n == 0 {
+        return (vec![0, m], vec![0, n]);
+    }
+    let target = 4 * threads;
+    let col_units = n.div_ceil(nq);
+    let ncb = col_units.min(target);
+    let cols = bounds(n, col_units.div_ceil(ncb) * nq);
+    let ncb = cols.len() - 1;
+    let row_units = m.div_ceil(mq);
+    let nrb = row_units.min(target.div_ceil(ncb));
+    let rows = bounds(m, row_units.div_ceil(nrb) * mq);
+    (rows, cols)
+}
+
+/// `C(i, j) (+)= sum_k A(i, k) B(k, j)` for `i < a.m()`, `j < n`, where
+/// `B(k, j) = b[b_rows[k] + j]` and `C(i, j) = c[i * ldc + j]`. Without `accumulate` C is
+/// overwritten.
+///
+/// Panics if a row of B or C is out of bounds or `b_rows.len() != a.k()` (caller bugs).
+pub fn gemm_nn(a: &PackedA, b: &[f32], b_rows: &[usize], n: usize, c: &mut [f32], ldc: usize, accumulate: bool) {
+    let (m, k) = (a.m, a.k);
+    assert_eq!(b_rows.len(), k, "gemm_nn: B has {} rows, A has {k} columns", b_rows.len());
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(ldc >= n && c.len() >= (m - 1) * ldc + n, "gemm_nn: C too small");
+    let max_row = b_rows.iter().copied().max().unwrap_or(0);
+    assert!(k == 0 || max_row + n <= b.len(), "gemm_nn: B row out of bounds");
+    let simd = simd_active();
+    let (rows, cols) = grid(m, n, m * n * k, MR, NR);
+    let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
+    let ctx = NnCtx { a, b, b_rows, max_row, accumulate, simd };
+    if blocks.len() == 1 {
+        blocks.into_iter().for_each(|blk| ctx.block(blk));
+    } else {
+        blocks.into_par_iter().for_each(|blk| ctx.block(blk));
+    }
+}
+
+struct NnCtx<'a> {
+    a: &'a PackedA,
+    b: &'a [f32],
+    b_rows: &'a [usize],
+    max_row: usize,
+    accumulate: bool,
+    simd: bool,
+}
+
+impl NnCtx<'_> {
+    /// BLIS loop order inside one block: column panels of NC (packed B in L2), K blocks of KC,
+    /// row blocks of MC (A in L2), then NR-wide strips (in L1) times MR-high tiles.
+    fn block(&self, mut blk: Block<'_>) {
+        let k = self.a.k;
+        let width = blk.rows.first().map_or(0, |r| r.len());
+        if k == 0 {
+            if !self.accumulate {
+                blk.rows.iter_mut().for_each(|r| r.fill(0.0));
+            }
+            return;
+        }
+        if self.a.m <= DIRECT_MAX_M {
+            return self.block_direct(blk, width);
+        }
+        let nrows = blk.rows.len();
+        debug_assert_eq!(blk.i0 % MR, 0);
+        let mut pack = vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR)];
+        let mut tile = [0.0f32; MR * NR];
+        for jc in (0..width).step_by(NC) {
+            let ncw = NC.min(width - jc);
+            let nstrips = ncw.div_ceil(NR);
+            for k0 in (0..k).step_by(KC) {
+                let kc = KC.min(k - k0);
+                self.pack_b(&mut pack[..nstrips * kc * NR], k0, kc, blk.j0 + jc, ncw);
+                let first = k0 == 0 && !self.accumulate;
+                for ic in (0..nrows).step_by(MC) {
+                    let mcw = MC.min(nrows - ic);
+                    for s in 0..nstrips {
+                        let bp = &pack[s * kc * NR..(s + 1) * kc * NR];
+                        let js = jc + s * NR;
+                        let nv = NR.min(ncw - s * NR);
+                        for r0 in (ic..ic + mcw).step_by(MR) {
+                            let mv = MR.min(ic + mcw - r0);
+                            let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
+                            self.kernel(mv, kc, ap, bp, &mut tile);
+                            for r in 0..mv {
+                                let dst = &mut blk.rows[r0 + r][js..js + nv];
+                                let src = &tile[r * NR..r * NR + nv];
+                                if first {
+                                    dst.copy_from_slice(src);
+                                } else {
+                                    dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Loop order for few rows of A: NR-wide strips, K blocks, MR-high tiles, with B read in
+    /// place (packing would cost more than the few tiles that reuse it); only the ragged last
+    /// strip goes through a zero-padded copy.
+    fn block_direct(&self, mut blk: Block<'_>, width: usize) {
+        let k = self.a.k;
+        let nrows = blk.rows.len();
+        let mut pack = vec![0.0f32; KC.min(k) * NR];
+        let mut tile = [0.0f32; MR * NR];
+        for js in (0..width).step_by(NR) {
+            let j = blk.j0 + js;
+            let nv = NR.min(width - js);
+            for k0 in (0..k).step_by(KC) {
+                let kc = KC.min(k - k0);
+                let rows_k = &self.b_rows[k0..k0 + kc];
+                if nv < NR {
+                    for (kk, &r) in rows_k.iter().enumerate() {
+                        let dst = &mut pack[kk * NR..(kk + 1) * NR];
+                        dst[..nv].copy_from_slice(&self.b[r + j..r + j + nv]);
+                        dst[nv..].fill(0.0);
+                    }
+                }
+                let first = k0 == 0 && !self.accumulate;
+                for r0 in (0..nrows).step_by(MR) {
+                    let mv = MR.min(nrows - r0);
+                    let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
+                    if nv == NR {
+                        self.kernel_rows(mv, kc, ap, rows_k, j, &mut tile);
+                    } else {
+                        self.kernel(mv, kc, ap, &pack[..kc * NR], &mut tile);
+                    }
+                    for r in 0..mv {
+                        let dst = &mut blk.rows[r0 + r][js..js + nv];
+                        let src = &tile[r * NR..r * NR + nv];
+                        if first {
+                            dst.copy_from_slice(src);
+                        } else {
+                            dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Like [`Self::kernel`] with B read in place: step k reads `b[rows[k] + j..][..NR]`.
+    fn kernel_rows(&self, mv: usize, kc: usize, a: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
+        assert!(a.len() >= kc * MR && rows.len() >= kc && self.max_row + j + NR <= self.b.len());
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            let b = self.b;
+            // SAFETY: `simd` is only set when the CPU reports AVX2 and FMA; the assert above
+            // covers every read: A `kc * MR` values, B `rows[k] + j .. + NR` with
+            // `rows[k] <= max_row`.
+            unsafe {
+                match mv {
+                    1 => avx2::kernel_nn_rows::<1>(kc, a, b, rows, j, out),
+                    2 => avx2::kernel_nn_rows::<2>(kc, a, b, rows, j, out),
+                    3 => avx2::kernel_nn_rows::<3>(kc, a, b, rows, j, out),
+                    4 => avx2::kernel_nn_rows::<4>(kc, a, b, rows, j, out),
+                    5 => avx2::kernel_nn_rows::<5>(kc, a, b, rows, j, out),
+                    _ => avx2::kernel_nn_rows::<6>(kc, a, b, rows, j, out),
+                }
+            }
+            return;
+        }
+        scalar_kernel_nn_rows(mv, kc, a, self.b, rows, j, out);
+    }
+
+    /// Copies B rows `k0..k0 + kc`, columns `j..j + ncw` into NR-wide strips
+    /// (`pack[s][kk][0..NR]`, zero past `ncw`).
+    fn pack_b(&self, pack: &mut [f32], k0: usize, kc: usize, j: usize, ncw: usize) {
+        let nstrips = ncw.div_ceil(NR);
+        for kk in 0..kc {
+            let r = self.b_rows[k0 + kk] + j;
+            let src = &self.b[r..r + ncw];
+            for s in 0..nstrips {
+                let dst = &mut pack[(s * kc + kk) * NR..(s * kc + kk + 1) * NR];
+                let w = NR.min(ncw - s * NR);
+                dst[..w].copy_from_slice(&src[s * NR..s * NR + w]);
+                dst[w..].fill(0.0);
+            }
+        }
+    }
+
+    /// One MR x NR tile over `kc` steps from a packed A panel and a packed B strip.
+    fn kernel(&self, mv: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
+        assert!(a.len() >= kc * MR && b.len() >= kc * NR);
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            // SAFETY: `simd` is only set when the CPU reports AVX2 and FMA; the assert above
+            // covers every read (A: `kc * MR` values, B: `kc * NR` values).
+            unsafe {
+                match mv {
+                    1 => avx2::kernel_nn::<1>(kc, a, b, out),
+                    2 => avx2::kernel_nn::<2>(kc, a, b, out),
+                    3 => avx2::kernel_nn::<3>(kc, a, b, out),
+                    4 => avx2::kernel_nn::<4>(kc, a, b, out),
+                    5 => avx2::kernel_nn::<5>(kc, a, b, out),
+                    _ => avx2::kernel_nn::<6>(kc, a, b, out),
+                }
+            }
+            return;
+        }
+        scalar_kernel_nn(mv, kc, a, b, out);
+    }
+}
+
+/// Portable micro-kernel of [`gemm_nn`] reading B in place.
+fn scalar_kernel_nn_rows(mv: usize, kc: usize, a: &[f32], b: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
+    let mut acc = [[0.0f32; NR]; MR];
+    for k in 0..kc {
+        let bk: &[f32; NR] = b[rows[k] + j..rows[k] + j + NR].try_into().expect("NR slice");
+        let ak = &a[k * MR..k * MR + MR];
+        for r in 0..mv {
+            let av = ak[r];
+            for (acc, &bv) in acc[r].iter_mut().zip(bk) {
+                *acc += av * bv;
+            }
+        }
+    }
+    for r in 0..mv {
+        out[r * NR..(r + 1) * NR].copy_from_slice(&acc[r]);
+    }
+}
+
+/// Portable micro-kernel of [`gemm_nn`].
+fn scalar_kernel_nn(mv: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
+    let mut acc = [[0.0f32; NR]; MR];
+    for k in 0..kc {
+        let bk: &[f32; NR] = b[k * NR..k * NR + NR].try_into().expect("NR slice");
+        let ak = &a[k * MR..k * MR + MR];
+        for r in 0..mv {
+            let av = ak[r];
+            for (acc, &bv) in acc[r].iter_mut().zip(bk) {
+                *acc += av * bv;
+            }
+        }
+    }
+    for r in 0..mv {
+        out[r * NR..(r + 1) * NR].copy_from_slice(&acc[r]);
+    }
+}
+
+/// `C(i, j) (+)= sum_{k < kk} A(i, k) B(j, k)` for `i < a_rows.len()`, `j < b_rows.len()`, where
+/// `A(i, k) = a[a_rows[i] + k]`, `B(j, k) = b[b_rows[j] + k]`, `C(i, j) = c[i * ldc + j]`.
+///
+/// Panics if a row is out of bounds (caller bug).
+#[allow(clippy::too_many_arguments)]
+pub fn gemm_nt(a: &[f32], a_rows: &[usize], b: &[f32], b_rows: &[usize], kk: usize, c: &mut [f32], ldc: usize, accumulate: bool) {
+    let (m, n) = (a_rows.len(), b_rows.len());
+    if m == 0 || n == 0 {
+        return;
+    }
+    assert!(ldc >= n && c.len() >= (m - 1) * ldc + n, "gemm_nt: C too small");
+    assert!(a_rows.iter().all(|&r| r + kk <= a.len()), "gemm_nt: A row out of bounds");
+    assert!(b_rows.iter().all(|&r| r + kk <= b.len()), "gemm_nt: B row out of bounds");
+    let simd = simd_active();
+    let (rows, cols) = grid(m, n, m * n * kk, RT, CT * 4);
+    let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
+    let ctx = NtCtx { a, a_rows, b, b_rows, k: kk, accumulate, simd };
+    if blocks.len() == 1 {
+        blocks.into_iter().for_each(|blk| ctx.block(blk));
+    } else {
+        blocks.into_par_iter().for_each(|blk| ctx.block(blk));
+    }
+}
+
+struct NtCtx<'a> {
+    a: &'a [f32],
+    a_rows: &'a [usize],
+    b: &'a [f32],
+    b_rows: &'a [usize],
+    k: usize,
+    accumulate: bool,
+    simd: bool,
+}
+
+impl NtCtx<'_> {
+    fn block(&self, mut blk: Block<'_>) {
+        let nrows = blk.rows.len();
+        let width = blk.rows.first().map_or(0, |r| r.len());
+        if !self.accumulate {
+            blk.rows.iter_mut().for_each(|r| r.fill(0.0));
+        }
+        let mut out = [[0.0f32; CT]; RT];
+        let mut ao = [0usize; RT];
+        let mut bo = [0usize; CT];
+        for k0 in (0..self.k).step_by(KC_NT) {
+            let kc = KC_NT.min(self.k - k0);
+            for r0 in (0..nrows).step_by(RT) {
+                let rv = RT.min(nrows - r0);
+                for (r, o) in ao.iter_mut().enumerate().take(rv) {
+                    *o = self.a_rows[blk.i0 + r0 + r] + k0;
+                }
+                for c0 in (0..width).step_by(CT) {
+                    let cv = CT.min(width - c0);
+                    for (cc, o) in bo.iter_mut().enumerate().take(cv) {
+                        *o = self.b_rows[blk.j0 + c0 + cc] + k0;
+                    }
+                    self.kernel(rv, cv, kc, &ao[..rv], &bo[..cv], &mut out);
+                    for r in 0..rv {
+                        for cc in 0..cv {
+                            blk.rows[r0 + r][c0 + cc] += out[r][cc];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn kernel(&self, rv: usize, cv: usize, kc: usize, ao: &[usize], bo: &[usize], out: &mut [[f32; CT]; RT]) {
+        assert!(ao.iter().all(|&o| o + kc <= self.a.len()) && bo.iter().all(|&o| o + kc <= self.b.len()));
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            let (a, b) = (self.a, self.b);
+            // SAFETY: `simd` implies AVX2 and FMA; the assert above bounds every row read
+            // (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`), and `ao`/`bo` hold `rv`/`cv` entries.
+            unsafe {
+                match (rv, cv) {
+                    (4, 3) => avx2::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
+                    (4, 2) => avx2::kernel_nt::<4, 2>(kc, a, ao, b, bo, out),
+                    (4, 1) => avx2::kernel_nt::<4, 1>(kc, a, ao, b, bo, out),
+                    (3, 3) => avx2::kernel_nt::<3, 3>(kc, a, ao, b, bo, out),
+                    (3, 2) => avx2::kernel_nt::<3, 2>(kc, a, ao, b, bo, out),
+                    (3, 1) => avx2::kernel_nt::<3, 1>(kc, a, ao, b, bo, out),
+                    (2, 3) => avx2::kernel_nt::<2, 3>(kc, a, ao, b, bo, out),
+                    (2, 2) => avx2::kernel_nt::<2, 2>(kc, a, ao, b, bo, out),
+                    (2, 1) => avx2::kernel_nt::<2, 1>(kc, a, ao, b, bo, out),
+                    (1, 3) => avx2::kernel_nt::<1, 3>(kc, a, ao, b, bo, out),
+                    (1, 2) => avx2::kernel_nt::<1, 2>(kc, a, ao, b, bo, out),
+                    _ => avx2::kernel_nt::<1, 1>(kc, a, ao, b, bo, out),
+                }
+            }
+            return;
+        }
+        scalar_kernel_nt(kc, self.a, ao, self.b, bo, out);
+    }
+}
+
+/// Portable micro-kernel of [`gemm_nt`]: eight partial sums per dot product, added pairwise,
+/// in the same order as the SIMD kernel.
+fn scalar_kernel_nt(kc: usize, a: &[f32], ao: &[usize], b: &[f32], bo: &[usize], out: &mut [[f32; CT]; RT]) {
+    for (r, &oa) in ao.iter().enumerate() {
+        let ar = &a[oa..oa + kc];
+        for (c, &ob) in bo.iter().enumerate() {
+            let br = &b[ob..ob + kc];
+            let mut lanes = [0.0f32; 8];
+            let k8 = kc / 8 * 8;
+            for (ac, bc) in ar[..k8].chunks_exact(8).zip(br[..k8].chunks_exact(8)) {
+                for l in 0..8 {
+                    lanes[l] += ac[l] * bc[l];
+                }
+            }
+            let mut s = hsum8(&lanes);
+            for kk in k8..kc {
+                s += ar[kk] * br[kk];
+            }
+            out[r][c] = s;
+        }
+    }
+}
+
+/// Fixed-order sum of eight lanes.
+fn hsum8(l: &[f32; 8]) -> f32 {
+    ((l[0] + l[4]) + (l[2] + l[6])) + ((l[1] + l[5]) + (l[3] + l[7]))
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{hsum8, CT, MR, NR, RT};
+    use std::arch::x86_64::*;
+
+    /// `out[r][..] = sum_k a[k * MR + r] * b[k * NR..][..NR]` for `r < R`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA; `a.len() >= kc * MR` and `b.len() >= kc * NR`.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn kernel_nn<const R: usize>(kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
+        let mut acc = [[_mm256_setzero_ps(); 2]; R];
+        let mut ap = a.as_ptr();
+        let mut bp = b.as_ptr();
+        for _ in 0..kc {
+            // SAFETY: `kc` steps of NR values of B and MR values of A are in bounds by the contract.
+            let b0 = _mm256_loadu_ps(bp);
+            let b1 = _mm256_loadu_ps(bp.add(8));
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let av = _mm256_set1_ps(*ap.add(r));
+                acc[0] = _mm256_fmadd_ps(av, b0, acc[0]);
+                acc[1] = _mm256_fmadd_ps(av, b1, acc[1]);
+            }
+            ap = ap.add(MR);
+            bp = bp.add(NR);
+        }
+        let op = out.as_mut_ptr();
+        for (r, acc) in acc.iter().enumerate() {
+            // SAFETY: `r < R <= MR`, so both stores stay inside the MR * NR tile.
+            _mm256_storeu_ps(op.add(r * NR), acc[0]);
+            _mm256_storeu_ps(op.add(r * NR + 8), acc[1]);
+        }
+    }
+
+    /// `out[r][..] = sum_k a[k * MR + r] * b[rows[k] + j ..][..NR]` for `r < R`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA; `a.len() >= kc * MR`, `rows.len() >= kc` and
+    /// `rows[k] + j + NR <= b.len()` for every `k < kc`.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn kernel_nn_rows<const R: usize>(kc: usize, a: &[f32], b: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
+        let mut acc = [[_mm256_setzero_ps(); 2]; R];
+        let mut ap = a.as_ptr();
+        let bp = b.as_ptr().add(j);
+        for &row in &rows[..kc] {
+            // SAFETY: `row + j + NR <= b.len()` and `kc * MR <= a.len()` by the contract.
+            let p = bp.add(row);
+            let b0 = _mm256_loadu_ps(p);
+            let b1 = _mm256_loadu_ps(p.add(8));
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let av = _mm256_set1_ps(*ap.add(r));
+                acc[0] = _mm256_fmadd_ps(av, b0, acc[0]);
+                acc[1] = _mm256_fmadd_ps(av, b1, acc[1]);
+            }
+            ap = ap.add(MR);
+        }
+        let op = out.as_mut_ptr();
+        for (r, acc) in acc.iter().enumerate() {
+            // SAFETY: `r < R <= MR`, so both stores stay inside the MR * NR tile.
+            _mm256_storeu_ps(op.add(r * NR), acc[0]);
+            _mm256_storeu_ps(op.add(r * NR + 8), acc[1]);
+        }
+    }
+
+    /// `out[r][c] = sum_{k < kc} a[ao[r] + k] * b[bo[c] + k]` for `r < R`, `c < C`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA; `ao.len() >= R`, `bo.len() >= C`,
+    /// `ao[r] + kc <= a.len()` and `bo[c] + kc <= b.len()`.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn kernel_nt<const R: usize, const C: usize>(
+        kc: usize,
+        a: &[f32],
+        ao: &[usize],
+        b: &[f32],
+        bo: &[usize],
+        out: &mut [[f32; CT]; RT],
+    ) {
+        let mut acc = [[_mm256_setzero_ps(); C]; R];
+        let mut pa = [a.as_ptr(); R];
+        let mut pb = [b.as_ptr(); C];
+        for r in 0..R {
+            pa[r] = a.as_ptr().add(ao[r]);
+        }
+        for c in 0..C {
+            pb[c] = b.as_ptr().add(bo[c]);
+        }
+        let k8 = kc / 8 * 8;
+        let mut k = 0;
+        while k < k8 {
+            // SAFETY: `k + 8 <= kc`, and every row has `kc` readable values by the contract.
+            let mut av = [_mm256_setzero_ps(); R];
+            for r in 0..R {
+                av[r] = _mm256_loadu_ps(pa[r].add(k));
+            }
+            for c in 0..C {
+                let bv = _mm256_loadu_ps(pb[c].add(k));
+                for r in 0..R {
+                    acc[r][c] = _mm256_fmadd_ps(av[r], bv, acc[r][c]);
+                }
+            }
+            k += 8;
+        }
+        let mut lanes = [0.0f32; 8];
+        for r in 0..R {
+            for c in 0..C {
+                // SAFETY: `lanes` holds eight f32.
+                _mm256_storeu_ps(lanes.as_mut_ptr(), acc[r][c]);
+                let mut s = hsum8(&lanes);
+                for kk in k8..kc {
+                    s += *pa[r].add(kk) * *pb[c].add(kk);
+                }
+                out[r][c] = s;
+            }
+        }
+    }
+}

@@ -1,0 +1,68 @@
+//! Instance normalisation without affine parameters: per channel, mean and biased variance
+//! over all pixels, `y = (x - mean) / sqrt(var + eps)`.
+
+use super::Tensor;
+use rayon::prelude::*;
+
+/// The epsilon added to the variance.
+pub const EPS: f64 = 1e-5;
+
+/// Per-channel statistics of one instance-norm application (what backward needs besides `y`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NormStats {
+    /// Mean per channel.
+    pub mean: Vec<f32>,
+    /// `1 / sqrt(var + eps)` per channel.
+    pub rstd: Vec<f32>,
+}
+
+/// Mean and reciprocal standard deviation of one plane, summed in f64.
+pub fn plane_stats(p: &[f32]) -> (f32, f32) {
+    if p.is_empty() {
+        return (0.0, (1.0 / EPS.sqrt()) as f32);
+    }
+    // Four f64 partial sums so the loop vectorises; fixed order, so deterministic.
+    let mut s = [0.0f64; 4];
+    let mut q = [0.0f64; 4];
+    let chunks = p.chunks_exact(4);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for l in 0..4 {
+            let v = c[l] as f64;
+            s[l] += v;
+            q[l] += v * v;
+        }
+    }
+    for (l, &v) in tail.iter().enumerate() {
+        s[l] += v as f64;
+        q[l] += v as f64 * v as f64;
+    }
+    let n = p.len() as f64;
+    let mean = (s[0] + s[1] + s[2] + s[3]) / n;
+    let var = ((q[0] + q[1] + q[2] + q[3]) / n - mean * mean).max(0.0);
+    (mean as f32, (1.0 / (var + EPS).sqrt()) as f32)
+}
+
+/// Statistics of every channel of `x`.
+pub fn instance_norm_stats(x: &Tensor) -> NormStats {
+    let n = x.plane_len();
+    let st: Vec<(f32, f32)> = if n == 0 {
+        vec![plane_stats(&[]); x.c]
+    } else {
+        x.data.par_chunks(n).map(plane_stats).collect()
+    };
+    NormStats { mean: st.iter().map(|s| s.0).collect(), rstd: st.iter().map(|s| s.1).collect() }
+}
+
+/// Normalises `x` in place and returns the statistics it used.
+pub fn instance_norm(x: &mut Tensor) -> NormStats {
+    let st = instance_norm_stats(x);
+    let n = x.plane_len();
+    if n > 0 {
+        x.data.par_chunks_mut(n).enumerate().for_each(|(c, p)| {
+            let (m, r) = (st.mean[c], st.rstd[c]);
+            p.iter_mut().for_each(|v| *v = (*v - m) * r);
+        });
+    }
+    st
+}

@@ -1,0 +1,104 @@
+//! `Tensor`: a CHW planar f32 image (batch 1), the activation type of every layer.
+
+use super::NnError;
+
+/// A C x H x W image stored plane after plane (`data[(c * h + y) * w + x]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tensor {
+    /// Channels.
+    pub c: usize,
+    /// Rows.
+    pub h: usize,
+    /// Columns.
+    pub w: usize,
+    /// `c * h * w` values, CHW order.
+    pub data: Vec<f32>,
+}
+
+impl Tensor {
+    /// A tensor of zeros.
+    pub fn zeros(c: usize, h: usize, w: usize) -> Self {
+        Tensor { c, h, w, data: vec![0.0; c * h * w] }
+    }
+
+    /// Wraps `data`, checking that it holds exactly `c * h * w` values.
+    pub fn from_vec(c: usize, h: usize, w: usize, data: Vec<f32>) -> Result<Self, NnError> {
+        let n = c.checked_mul(h).and_then(|v| v.checked_mul(w));
+        if n != Some(data.len()) {
+            return Err(NnError::Shape(format!(
+                "tensor {c}x{h}x{w} needs {} values, got {}",
+                n.map_or("overflowing".to_string(), |v| v.to_string()),
+                data.len()
+            )));
+        }
+        Ok(Tensor { c, h, w, data })
+    }
+
+    /// Pixels per plane (`h * w`).
+    pub fn plane_len(&self) -> usize {
+        self.h * self.w
+    }
+
+    /// Channel `c` as an H*W row-major slice.
+    pub fn plane(&self, c: usize) -> &[f32] {
+        let n = self.plane_len();
+        &self.data[c * n..(c + 1) * n]
+    }
+
+    /// Channel `c`, mutable.
+    pub fn plane_mut(&mut self, c: usize) -> &mut [f32] {
+        let n = self.plane_len();
+        &mut self.data[c * n..(c + 1) * n]
+    }
+
+    /// Value at (c, y, x).
+    pub fn at(&self, c: usize, y: usize, x: usize) -> f32 {
+        self.data[(c * self.h + y) * self.w + x]
+    }
+
+    /// Channels stacked: `self` first, then `other` (same H and W).
+    pub fn concat(&self, other: &Tensor) -> Result<Tensor, NnError> {
+        if self.h != other.h || self.w != other.w {
+            return Err(NnError::Shape(format!(
+                "concat of {}x{} with {}x{}",
+                self.h, self.w, other.h, other.w
+            )));
+        }
+        let mut data = Vec::with_capacity(self.data.len() + other.data.len());
+        data.extend_from_slice(&self.data);
+        data.extend_from_slice(&other.data);
+        Ok(Tensor { c: self.c + other.c, h: self.h, w: self.w, data })
+    }
+
+    /// The tensor grown to `h2 x w2` with zeros at the bottom and right (`h2 >= h`, `w2 >= w`).
+    pub fn pad_bottom_right(&self, h2: usize, w2: usize) -> Tensor {
+        assert!(h2 >= self.h && w2 >= self.w, "pad_bottom_right shrinks");
+        if h2 == self.h && w2 == self.w {
+            return self.clone();
+        }
+        let mut out = Tensor::zeros(self.c, h2, w2);
+        for c in 0..self.c {
+            for y in 0..self.h {
+                let src = &self.data[(c * self.h + y) * self.w..][..self.w];
+                out.data[(c * h2 + y) * w2..][..self.w].copy_from_slice(src);
+            }
+        }
+        out
+    }
+
+    /// The top-left `h2 x w2` window (`h2 <= h`, `w2 <= w`).
+    pub fn crop_top_left(&self, h2: usize, w2: usize) -> Tensor {
+        assert!(h2 <= self.h && w2 <= self.w, "crop_top_left grows");
+        if h2 == self.h && w2 == self.w {
+            return self.clone();
+        }
+        let mut out = Tensor::zeros(self.c, h2, w2);
+        for c in 0..self.c {
+            for y in 0..h2 {
+                let src = &self.data[(c * self.h + y) * self.w..][..w2];
+                out.data[(c * h2 + y) * w2..][..w2].copy_from_slice(src);
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,263 @@
+//! Neural texture sampling: `F(u, v) = sum over levels of bilinear(level, u, v)` exactly as
+//! DESIGN.md "Neural texture" defines it (texel centres at half-integers, row 0 at v = 0,
+//! per-axis wrap of the integer tap indices, no mipmapping).
+//!
+//! [`taps`] is the single definition of the four taps and their weights; the forward
+//! sampler here and the baker's backward both call it, so they cannot drift apart.
+//!
+//! Precision: `x = u*W - 0.5` and `floor(x)` are computed in f64 and the wrap is applied to
+//! the f64 integer value (`%` on f64 is exact), so any finite u works without integer
+//! overflow. The result is exact while `|u| * W < 2^52` (for f32 u and W < 2^29 the product
+//! `u * W` itself is exact); beyond that f64 has no fractional bits left and the sample
+//! degenerates to a single texel, which is what the exact formula tends to anyway.
+
+use rayon::prelude::*;
+
+use crate::gbuffer::GBuffer;
+
+/// Per-axis wrap mode of the integer tap indices (glTF sampler `wrapS` / `wrapT`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Wrap {
+    /// `i mod n`, non-negative (glTF 10497, the default).
+    #[default]
+    Repeat,
+    /// `clamp(i, 0, n - 1)` (glTF 33071).
+    ClampToEdge,
+    /// `m = i mod 2n; m < n ? m : 2n - 1 - m` (glTF 33648).
+    MirroredRepeat,
+}
+
+impl Wrap {
+    /// The wrap mode for a glTF sampler enum value; None for unknown values.
+    pub fn from_gl(code: u32) -> Option<Wrap> {
+        match code {
+            10497 => Some(Wrap::Repeat),
+            33071 => Some(Wrap::ClampToEdge),
+            33648 => Some(Wrap::MirroredRepeat),
+            _ => None,
+        }
+    }
+
+    /// The glTF sampler enum value.
+    pub fn to_gl(self) -> u32 {
+        match self {
+            Wrap::Repeat => 10497,
+            Wrap::ClampToEdge => 33071,
+            Wrap::MirroredRepeat => 33648,
+        }
+    }
+
+    /// Wrapped indices of the integer-valued `i0` and of `i0 + 1` for an axis of `n >= 1`
+    /// texels. `i0` may be any finite integer-valued f64.
+    #[inline]
+    pub fn pair(self, i0: f64, n: usize) -> (usize, usize) {
+        let nf = n as f64;
+        match self {
+            Wrap::Repeat => {
+                let m = rem_euclid(i0, nf);
+                let m1 = if m + 1 == n { 0 } else { m + 1 };
+                (m, m1)
+            }
+            Wrap::ClampToEdge => {
+                let hi = nf - 1.0;
+                (i0.clamp(0.0, hi) as usize, (i0 + 1.0).clamp(0.0, hi) as usize)
+            }
+            Wrap::MirroredRepeat => {
+                let m = rem_euclid(i0, 2.0 * nf);
+                let m1 = if m + 1 == 2 * n { 0 } else { m + 1 };
+                let mirror = |m: usize| if m < n { m } else { 2 * n - 1 - m };
+                (mirror(m), mirror(m1))
+            }
+        }
+    }
+}
+
+/// Non-negative remainder of an integer-valued f64 by a positive integer-valued f64, as an
+/// index. Exact: IEEE `%` (fmod) is exact, and the result is a small integer.
+#[inline]
+fn rem_euclid(i: f64, n: f64) -> usize {
+    let r = i % n;
+    let r = if r < 0.0 { r + n } else { r };
+    // r is an integer in [0, n); the min guards the cast against any doubt.
+    (r as usize).min(n as usize - 1)
+}
+
+/// One bilinear tap: texel index within its level (`y * width + x`) and weight.
+pub type Tap = (usize, f32);
+
+/// The four bilinear taps of `(u, v)` on a `width x height` level, in the order
+/// `(x0, y0), (x0+1, y0), (x0, y0+1), (x0+1, y0+1)` with weights
+/// `(1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy`. None when u or v is not finite or the level
+/// is empty. Wrapped taps may coincide (clamping, width 1); their weights then add up.
+#[inline]
+pub fn taps(width: usize, height: usize, wrap_s: Wrap, wrap_t: Wrap, u: f32, v: f32) -> Option<[Tap; 4]> {
+    if !(u.is_finite() && v.is_finite()) || width == 0 || height == 0 {
+        return None;
+    }
+    let x = u as f64 * width as f64 - 0.5;
+    let y = v as f64 * height as f64 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+    let (xa, xb) = wrap_s.pair(x0, width);
+    let (ya, yb) = wrap_t.pair(y0, height);
+    Some([
+        (ya * width + xa, (1.0 - fx) * (1.0 - fy)),
+        (ya * width + xb, fx * (1.0 - fy)),
+        (yb * width + xa, (1.0 - fx) * fy),
+        (yb * width + xb, fx * fy),
+    ])
+}
+
+/// One level of a neural texture.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Level {
+    /// Width in texels.
+    pub width: usize,
+    /// Height in texels.
+    pub height: usize,
+    /// `height * width * channels` values, texel-interleaved (HWC), row 0 (v = 0) first.
+    pub data: Vec<f32>,
+}
+
+/// A neural texture: levels finest first, all with the same channel count, sampled
+/// together with one sampler.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Pyramid {
+    /// Channels per texel.
+    pub channels: usize,
+    /// The levels, finest first.
+    pub levels: Vec<Level>,
+    /// Wrap along u (x).
+    pub wrap_s: Wrap,
+    /// Wrap along v (y).
+    pub wrap_t: Wrap,
+}
+
+/// Why a [`Pyramid`] or a sampling call is malformed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TextureError {
+    /// Zero channels or no levels.
+    #[error("a neural texture needs at least one channel and one level")]
+    Empty,
+    /// A level with a zero side or a data length that is not `width * height * channels`.
+    #[error("level {level}: {width}x{height}x{channels} needs {expected} values, found {found}")]
+    LevelSize {
+        /// Level index.
+        level: usize,
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+        /// Channels.
+        channels: usize,
+        /// Expected value count (0 when overflowing).
+        expected: usize,
+        /// Actual value count.
+        found: usize,
+    },
+    /// The output buffer does not hold `channels * width * height` values, or the G-buffer
+    /// is inconsistent.
+    #[error("output holds {found} values, expected {expected} (channels x height x width)")]
+    OutputSize {
+        /// Expected.
+        expected: usize,
+        /// Found.
+        found: usize,
+    },
+}
+
+impl Pyramid {
+    /// A checked pyramid.
+    pub fn new(channels: usize, levels: Vec<Level>, wrap_s: Wrap, wrap_t: Wrap) -> Result<Self, TextureError> {
+        let p = Pyramid { channels, levels, wrap_s, wrap_t };
+        p.validate()?;
+        Ok(p)
+    }
+
+    /// Checks channel count, level sizes and data lengths.
+    pub fn validate(&self) -> Result<(), TextureError> {
+        if self.channels == 0 || self.levels.is_empty() {
+            return Err(TextureError::Empty);
+        }
+        for (i, l) in self.levels.iter().enumerate() {
+            let expected = l.width.checked_mul(l.height).and_then(|n| n.checked_mul(self.channels));
+            if l.width == 0 || l.height == 0 || expected != Some(l.data.len()) {
+                return Err(TextureError::LevelSize {
+                    level: i,
+                    width: l.width,
+                    height: l.height,
+                    channels: self.channels,
+                    expected: expected.unwrap_or(0),
+                    found: l.data.len(),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds `F(u, v)` (all levels) to `out[..channels]`; leaves it unchanged when u or v is
+    /// not finite. The pyramid must be valid.
+    #[inline]
+    pub fn accumulate(&self, u: f32, v: f32, out: &mut [f32]) {
+        let c = self.channels;
+        let out = &mut out[..c];
+        for l in &self.levels {
+            let Some(tp) = taps(l.width, l.height, self.wrap_s, self.wrap_t, u, v) else { return };
+            for (t, w) in tp {
+                let texel = &l.data[t * c..t * c + c];
+                for (o, &x) in out.iter_mut().zip(texel) {
+                    *o += w * x;
+                }
+            }
+        }
+    }
+}
+
+/// Samples the pyramid at every pixel of `gbuf` into `out`, planar `channels x height x
+/// width` (CHW). Covered pixels with finite uv get the sum over levels; all other pixels
+/// are set to zero (without sampling). Parallel over rows.
+pub fn sample_into(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
+    pyr.validate()?;
+    let (w, h, c) = (gbuf.width, gbuf.height, pyr.channels);
+    let expected = c * w * h;
+    if out.len() != expected || !gbuf.is_consistent() {
+        return Err(TextureError::OutputSize { expected, found: out.len() });
+    }
+    if expected == 0 {
+        return Ok(());
+    }
+    for_rows_of_planes(out, c, w, h, |y, planes| {
+        let mut acc = vec![0.0f32; c];
+        for x in 0..w {
+            let i = y * w + x;
+            let [u, v] = gbuf.uv[i];
+            acc.fill(0.0);
+            if gbuf.coverage[i] != 0.0 {
+                pyr.accumulate(u, v, &mut acc);
+            }
+            for (plane, &a) in planes.iter_mut().zip(&acc) {
+                plane[x] = a;
+            }
+        }
+    });
+    Ok(())
+}
+
+/// Runs `f(y, rows)` in parallel over image rows, where `rows[k]` is row `y` of plane `k` of
+/// the planar (CHW) buffer `buf`. Disjoint mutable slices, no unsafe.
+pub fn for_rows_of_planes<F>(buf: &mut [f32], planes: usize, w: usize, h: usize, f: F)
+where
+    F: Fn(usize, &mut [&mut [f32]]) + Sync + Send,
+{
+    assert_eq!(buf.len(), planes * w * h, "planar buffer size");
+    if buf.is_empty() {
+        return;
+    }
+    let mut rows: Vec<Vec<&mut [f32]>> = (0..h).map(|_| Vec::with_capacity(planes)).collect();
+    for plane in buf.chunks_mut(w * h) {
+        for (y, row) in plane.chunks_mut(w).enumerate() {
+            rows[y].push(row);
+        }
+    }
+    rows.into_par_iter().enumerate().for_each(|(y, mut r)| f(y, &mut r));
+}
