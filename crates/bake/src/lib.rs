@@ -4,3 +4,6 @@
 //! Uses the runtime's forward kernels so what it optimises is what the runtime draws.
 
 pub mod capture;
+pub mod bake;
+pub mod export;
+pub mod train;

@@ -1,4 +1,39 @@
-fn main() {
-    eprintln!("dnr: not yet implemented");
-    std::process::exit(2);
+//! `dnr`: validate, inspect (and later render, evaluate, benchmark) `EXT_deferred_neural_rendering` assets.
+#![forbid(unsafe_code)]
+
+mod cmd;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Tools for EXT_deferred_neural_rendering glTF assets.
+#[derive(Parser)]
+#[command(name = "dnr", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Check an asset against the format; exit 0 when it has no errors, 1 when it has.
+    Validate(cmd::validate::Args),
+    /// Summarise an asset: textures, renderers, parameter counts, bytes by part.
+    Inspect(cmd::inspect::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Validate(args) => cmd::validate::run(&args),
+        Command::Inspect(args) => cmd::inspect::run(&args),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("dnr: {e:#}");
+            ExitCode::from(2)
+        }
+    }
 }

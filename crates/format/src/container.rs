@@ -49,6 +49,16 @@ impl Problem {
     }
 }
 
+impl Problem {
+    /// The message for a report: the error text without the `invalid` prefix.
+    pub fn message(&self) -> String {
+        match &self.error {
+            Error::Invalid { what } => what.clone(),
+            other => other.to_string(),
+        }
+    }
+}
+
 impl From<Problem> for Error {
     fn from(p: Problem) -> Error {
         p.error

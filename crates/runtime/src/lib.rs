@@ -12,3 +12,4 @@ pub mod sh;
 pub mod texture;
 pub mod network;
 pub mod nn;
+pub mod renderer;

@@ -471,7 +471,7 @@ fn emit(frame: &Frame, v: &[[i64; 2]; 3], iz: &[f64; 3], b: &[DVec3; 3], prim: u
     }
     // Edge k is opposite vertex k.
     let ed = [(1, 2), (2, 0), (0, 1)];
-    let min_e = [0i64; 3];
+    let min_e = ed.map(|(i, j)| if is_top_left(v[i], v[j]) { 0 } else { 1 });
     out.push(SetupTri {
         v,
         area2: area,

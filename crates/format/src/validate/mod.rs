@@ -175,7 +175,7 @@ impl Ctx<'_> {
     }
 
     fn problem(&mut self, p: Problem, ptr: &Ptr<'_>) {
-        self.report(p.code, ptr, p.error.to_string());
+        self.report(p.code, ptr, p.message());
     }
 }
 
@@ -220,6 +220,12 @@ fn validate_into(ctx: &mut Ctx<'_>, bytes: &[u8], base_dir: Option<&Path>) {
         );
     } else if !bytes.is_empty() && b"glTF".starts_with(bytes) {
         return ctx.report("GLB_TRUNCATED", &root_ptr, "file ends inside the GLB magic");
+    } else if std::str::from_utf8(bytes).is_err() {
+        return ctx.report(
+            "GLB_INVALID_HEADER",
+            &root_ptr,
+            "neither a GLB (magic `glTF`) nor JSON text (not UTF-8)",
+        );
     } else {
         (bytes, None)
     };

@@ -12,6 +12,7 @@
 
 use super::gemm::{gemm_nn, PackedA};
 use super::{NnError, Tensor};
+use rayon::prelude::*;
 
 /// Geometry of a convolution with a square kernel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -112,19 +113,71 @@ pub struct ConvLayout {
     pub n: usize,
 }
 
+impl LayoutKind {
+    /// The arrangement used for `geom` (independent of the input size).
+    pub fn for_geom(geom: ConvGeom) -> Self {
+        if geom.k == 4 && geom.stride == 2 && geom.pad == 1 {
+            LayoutKind::SpaceToDepth
+        } else if geom.stride == 1 {
+            LayoutKind::Padded
+        } else {
+            LayoutKind::Im2col
+        }
+    }
+
+    /// Taps per plane.
+    pub fn taps(self, geom: ConvGeom) -> usize {
+        match self {
+            LayoutKind::SpaceToDepth => 4,
+            LayoutKind::Padded => geom.k * geom.k,
+            LayoutKind::Im2col => 1,
+        }
+    }
+}
+
+/// Index within one output channel's OIHW weights (`(c * k + ky) * k + kx`) of GEMM row `kk`
+/// (`plane * taps + t`) of layout `kind`.
+pub fn weight_index(geom: ConvGeom, kind: LayoutKind, kk: usize) -> usize {
+    let k = geom.k;
+    let taps = kind.taps(geom);
+    let (p, t) = (kk / taps, kk % taps);
+    let (c, ky, kx) = match kind {
+        LayoutKind::SpaceToDepth => {
+            let (c, a, b) = (p / 4, (p / 2) % 2, p % 2);
+            (c, 2 * (t / 2) + a, 2 * (t % 2) + b)
+        }
+        LayoutKind::Padded => (p, t / k, t % k),
+        LayoutKind::Im2col => (p / (k * k), (p / k) % k, p % k),
+    };
+    (c * k + ky) * k + kx
+}
+
+/// OIHW weights packed as the GEMM's A operand (`c_out x c_in k k`) in the row order of
+/// [`LayoutKind::for_geom`]; valid for every input size.
+pub fn pack_conv_weights(geom: ConvGeom, w: &[f32]) -> PackedA {
+    assert_eq!(w.len(), geom.weight_len(), "conv weights");
+    let kind = LayoutKind::for_geom(geom);
+    let per_o = geom.c_in * geom.k * geom.k;
+    let map: Vec<usize> = (0..per_o).map(|kk| weight_index(geom, kind, kk)).collect();
+    PackedA::from_fn(geom.c_out, per_o, |o, kk| w[o * per_o + map[kk]])
+}
+
 impl ConvLayout {
     /// The layout of `geom` on an `h x w` input.
     pub fn new(geom: ConvGeom, h: usize, w: usize) -> Result<Self, NnError> {
         let (h_out, w_out) = geom.out_size(h, w)?;
-        let (kind, planes, plane_h, pitch, shifts) = if geom.k == 4 && geom.stride == 2 && geom.pad == 1 {
-            let pitch = w_out + 1;
-            (LayoutKind::SpaceToDepth, 4 * geom.c_in, h_out + 1, pitch, vec![0, 1, pitch, pitch + 1])
-        } else if geom.stride == 1 {
-            let pitch = w + 2 * geom.pad;
-            let shifts = (0..geom.k * geom.k).map(|t| (t / geom.k) * pitch + t % geom.k).collect();
-            (LayoutKind::Padded, geom.c_in, h + 2 * geom.pad, pitch, shifts)
-        } else {
-            (LayoutKind::Im2col, geom.c_in * geom.k * geom.k, h_out, w_out, vec![0])
+        let kind = LayoutKind::for_geom(geom);
+        let (planes, plane_h, pitch, shifts) = match kind {
+            LayoutKind::SpaceToDepth => {
+                let pitch = w_out + 1;
+                (4 * geom.c_in, h_out + 1, pitch, vec![0, 1, pitch, pitch + 1])
+            }
+            LayoutKind::Padded => {
+                let pitch = w + 2 * geom.pad;
+                let shifts = (0..geom.k * geom.k).map(|t| (t / geom.k) * pitch + t % geom.k).collect();
+                (geom.c_in, h + 2 * geom.pad, pitch, shifts)
+            }
+            LayoutKind::Im2col => (geom.c_in * geom.k * geom.k, h_out, w_out, vec![0]),
         };
         let max_shift = shifts.iter().copied().max().unwrap_or(0);
         let n = h_out * pitch;
@@ -161,25 +214,12 @@ impl ConvLayout {
 
     /// Index within one output channel's OIHW weights (`(c * k + ky) * k + kx`) of GEMM row `kk`.
     pub fn weight_index(&self, kk: usize) -> usize {
-        let k = self.geom.k;
-        let (p, t) = (kk / self.taps(), kk % self.taps());
-        let (c, ky, kx) = match self.kind {
-            LayoutKind::SpaceToDepth => {
-                let (c, a, b) = (p / 4, (p / 2) % 2, p % 2);
-                (c, 2 * (t / 2) + a, 2 * (t % 2) + b)
-            }
-            LayoutKind::Padded => (p, t / k, t % k),
-            LayoutKind::Im2col => (p / (k * k), (p / k) % k, p % k),
-        };
-        (c * k + ky) * k + kx
+        weight_index(self.geom, self.kind, kk)
     }
 
     /// Packs OIHW weights as the GEMM's A operand (`c_out x gemm_k`).
     pub fn pack_weights(&self, w: &[f32]) -> PackedA {
-        assert_eq!(w.len(), self.geom.weight_len(), "conv weights");
-        let per_o = self.geom.c_in * self.geom.k * self.geom.k;
-        let map: Vec<usize> = (0..self.gemm_k()).map(|kk| self.weight_index(kk)).collect();
-        PackedA::from_fn(self.geom.c_out, self.gemm_k(), |o, kk| w[o * per_o + map[kk]])
+        pack_conv_weights(self.geom, w)
     }
 
     /// Input pixel (c, y, x) read by plane `p` at plane position (row, col), if any.
@@ -199,59 +239,95 @@ impl ConvLayout {
         (y >= 0 && x >= 0 && (y as usize) < self.h_in && (x as usize) < self.w_in).then_some((c, y as usize, x as usize))
     }
 
-    /// Plane width that holds data (`pitch`, or `w_out` for im2col).
-    fn plane_w(&self) -> usize {
-        self.pitch
-    }
-
     /// Rearranges `x` into the GEMM's B buffer (zeros where the kernel reads padding).
     pub fn gather(&self, x: &Tensor) -> Vec<f32> {
         assert!(x.c == self.geom.c_in && x.h == self.h_in && x.w == self.w_in, "conv gather shape");
         let mut buf = vec![0.0f32; self.buffer_len()];
-        let pw = self.plane_w();
-        match self.kind {
+        let (pw, ph) = (self.pitch, self.plane_h);
+        buf.par_chunks_mut(self.plane_stride).enumerate().for_each(|(pl, plane)| match self.kind {
+            LayoutKind::SpaceToDepth => {
+                let (c, a, b) = (pl / 4, (pl / 2) % 2, pl % 2);
+                // Plane (a, b) row Y col X holds x[2Y + a - 1][2X + b - 1].
+                let (x0, col0) = if b == 0 { (1, 1) } else { (0, 0) };
+                for row in 0..ph {
+                    let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < x.h) else { continue };
+                    let src = &x.data[(c * x.h + y) * x.w..][..x.w];
+                    let dst = &mut plane[row * pw + col0..(row + 1) * pw];
+                    dst.iter_mut().zip(src[x0.min(x.w)..].iter().step_by(2)).for_each(|(d, s)| *d = *s);
+                }
+            }
             LayoutKind::Padded => {
                 let p = self.geom.pad;
-                for c in 0..x.c {
-                    let plane = &mut buf[c * self.plane_stride..];
-                    for y in 0..x.h {
-                        plane[(y + p) * pw + p..][..x.w].copy_from_slice(&x.data[(c * x.h + y) * x.w..][..x.w]);
+                for y in 0..x.h {
+                    plane[(y + p) * pw + p..][..x.w].copy_from_slice(&x.data[(pl * x.h + y) * x.w..][..x.w]);
+                }
+            }
+            LayoutKind::Im2col => {
+                for row in 0..ph {
+                    for col in 0..pw {
+                        if let Some((c, y, xx)) = self.source(pl, row, col) {
+                            plane[row * pw + col] = x.data[(c * x.h + y) * x.w + xx];
+                        }
                     }
                 }
             }
-            _ => {
+        });
+        buf
+    }
+
+    /// Adjoint of [`Self::gather`]: sums the gradient of the B buffer back onto the input
+    /// pixels (padding positions are dropped). `dbuf` holds `planes` planes at `plane_stride`.
+    pub fn scatter(&self, dbuf: &[f32]) -> Tensor {
+        let mut dx = Tensor::zeros(self.geom.c_in, self.h_in, self.w_in);
+        self.scatter_add(dbuf, &mut dx);
+        dx
+    }
+
+    /// [`Self::scatter`] added onto `dx` (`c_in x h_in x w_in`).
+    pub fn scatter_add(&self, dbuf: &[f32], dx: &mut Tensor) {
+        assert!(dbuf.len() >= (self.planes - 1) * self.plane_stride + self.plane_h * self.pitch);
+        assert!(dx.c == self.geom.c_in && dx.h == self.h_in && dx.w == self.w_in, "conv scatter shape");
+        let (pw, ph, ps) = (self.pitch, self.plane_h, self.plane_stride);
+        let n = self.h_in * self.w_in;
+        if n == 0 {
+            return;
+        }
+        match self.kind {
+            LayoutKind::SpaceToDepth => dx.data.par_chunks_mut(n).enumerate().for_each(|(c, dplane)| {
+                // Each input pixel appears in exactly one phase plane.
+                for a in 0..2 {
+                    for b in 0..2 {
+                        let plane = &dbuf[(c * 4 + a * 2 + b) * ps..];
+                        let (x0, col0) = if b == 0 { (1, 1) } else { (0, 0) };
+                        for row in 0..ph {
+                            let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < self.h_in) else { continue };
+                            let src = &plane[row * pw + col0..(row + 1) * pw];
+                            let dst = &mut dplane[y * self.w_in..(y + 1) * self.w_in];
+                            dst[x0.min(self.w_in)..].iter_mut().step_by(2).zip(src).for_each(|(d, s)| *d += *s);
+                        }
+                    }
+                }
+            }),
+            LayoutKind::Padded => dx.data.par_chunks_mut(n).enumerate().for_each(|(c, dplane)| {
+                let p = self.geom.pad;
+                for y in 0..self.h_in {
+                    let src = &dbuf[c * ps + (y + p) * pw + p..][..self.w_in];
+                    dplane[y * self.w_in..(y + 1) * self.w_in].iter_mut().zip(src).for_each(|(d, s)| *d += *s);
+                }
+            }),
+            LayoutKind::Im2col => {
                 for pl in 0..self.planes {
-                    let plane = &mut buf[pl * self.plane_stride..];
-                    for row in 0..self.plane_h {
+                    let plane = &dbuf[pl * ps..];
+                    for row in 0..ph {
                         for col in 0..pw {
-                            if let Some((c, y, xx)) = self.source(pl, row, col) {
-                                plane[row * pw + col] = x.data[(c * x.h + y) * x.w + xx];
+                            if let Some((c, y, x)) = self.source(pl, row, col) {
+                                dx.data[(c * self.h_in + y) * self.w_in + x] += plane[row * pw + col];
                             }
                         }
                     }
                 }
             }
         }
-        buf
-    }
-
-    /// Adjoint of [`Self::gather`]: sums the gradient of the B buffer back onto the input
-    /// pixels (padding positions are dropped).
-    pub fn scatter(&self, dbuf: &[f32]) -> Tensor {
-        assert!(dbuf.len() >= self.buffer_len() - self.plane_stride + self.plane_h * self.plane_w());
-        let mut dx = Tensor::zeros(self.geom.c_in, self.h_in, self.w_in);
-        let pw = self.plane_w();
-        for pl in 0..self.planes {
-            let plane = &dbuf[pl * self.plane_stride..];
-            for row in 0..self.plane_h {
-                for col in 0..pw {
-                    if let Some((c, y, x)) = self.source(pl, row, col) {
-                        dx.data[(c * self.h_in + y) * self.w_in + x] += plane[row * pw + col];
-                    }
-                }
-            }
-        }
-        dx
     }
 
     /// Raw GEMM output (`c_out x n`, row stride `n`) of packed weights on a gathered buffer.
@@ -265,16 +341,18 @@ impl ConvLayout {
     pub fn finish(&self, raw: &[f32], bias: Option<&[f32]>) -> Tensor {
         let (ho, wo) = (self.h_out, self.w_out);
         let mut out = Tensor::zeros(self.geom.c_out, ho, wo);
-        for o in 0..self.geom.c_out {
+        if ho * wo == 0 {
+            return out;
+        }
+        out.data.par_chunks_mut(ho * wo).enumerate().for_each(|(o, dst)| {
             let b = bias.map_or(0.0, |b| b[o]);
             let src = &raw[o * self.n..(o + 1) * self.n];
-            let dst = out.plane_mut(o);
             for y in 0..ho {
                 for (d, s) in dst[y * wo..(y + 1) * wo].iter_mut().zip(&src[y * self.pitch..]) {
                     *d = s + b;
                 }
             }
-        }
+        });
         out
     }
 }

@@ -83,17 +83,18 @@ impl PackedA {
     }
 
     /// Packs the M x K matrix with element (i, k) = `f(i, k)`.
-    pub fn from_fn(m: usize, k: usize, f: impl Fn(usize, usize) -> f32) -> Self {
+    pub fn from_fn(m: usize, k: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Self {
         let tiles = m.div_ceil(MR);
         let mut data = vec![0.0f32; tiles * k * MR];
-        for t in 0..tiles {
-            let panel = &mut data[t * k * MR..(t + 1) * k * MR];
-            for r in 0..MR.min(m - t * MR) {
-                let i = t * MR + r;
-                for kk in 0..k {
-                    panel[kk * MR + r] = f(i, kk);
+        if k > 0 {
+            data.par_chunks_mut(k * MR).enumerate().for_each(|(t, panel)| {
+                let rows = MR.min(m - t * MR);
+                for (kk, dst) in panel.chunks_exact_mut(MR).enumerate() {
+                    for (r, d) in dst[..rows].iter_mut().enumerate() {
+                        *d = f(t * MR + r, kk);
+                    }
                 }
-            }
+            });
         }
         PackedA { m, k, data }
     }

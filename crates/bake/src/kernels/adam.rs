@@ -1,0 +1,161 @@
+//! Adam (PyTorch's formulation, with bias correction) for dense parameter groups, and a lazy
+//! row-sparse variant for neural-texture texels.
+
+use rayon::prelude::*;
+
+/// Adam hyper-parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamConfig {
+    /// Learning rate.
+    pub lr: f32,
+    /// First-moment decay.
+    pub beta1: f32,
+    /// Second-moment decay.
+    pub beta2: f32,
+    /// Added to the denominator.
+    pub eps: f32,
+}
+
+impl Default for AdamConfig {
+    /// lr 1e-3, betas (0.9, 0.999), eps 1e-8.
+    fn default() -> Self {
+        AdamConfig { lr: 1e-3, beta1: 0.9, beta2: 0.999, eps: 1e-8 }
+    }
+}
+
+/// Elements per parallel chunk (fixed, so results do not depend on the thread count).
+const CHUNK: usize = 1 << 14;
+
+/// One Adam update of a single value with bias-correction factors `bc1 = 1 - beta1^t`,
+/// `bc2_sqrt = sqrt(1 - beta2^t)`.
+#[inline]
+fn update(p: &mut f32, g: f32, m: &mut f32, v: &mut f32, cfg: &AdamConfig, lr: f32, bc1: f32, bc2_sqrt: f32) {
+    *m = cfg.beta1 * *m + (1.0 - cfg.beta1) * g;
+    *v = cfg.beta2 * *v + (1.0 - cfg.beta2) * g * g;
+    let denom = v.sqrt() / bc2_sqrt + cfg.eps;
+    *p -= (lr / bc1) * *m / denom;
+}
+
+/// Adam state of one dense parameter group (its own step count and learning rate).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Adam {
+    /// Hyper-parameters; `cfg.lr` is this group's learning rate.
+    pub cfg: AdamConfig,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: u64,
+}
+
+impl Adam {
+    /// State for `len` parameters.
+    pub fn new(len: usize, cfg: AdamConfig) -> Self {
+        Adam { cfg, m: vec![0.0; len], v: vec![0.0; len], t: 0 }
+    }
+
+    /// Steps taken.
+    pub fn steps(&self) -> u64 {
+        self.t
+    }
+
+    /// One step: `params -= lr * mhat / (sqrt(vhat) + eps)`. Does not clear `grads`.
+    pub fn step(&mut self, params: &mut [f32], grads: &[f32]) {
+        assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "adam: length");
+        self.t += 1;
+        let cfg = self.cfg;
+        let bc1 = 1.0 - cfg.beta1.powi(self.t.min(i32::MAX as u64) as i32);
+        let bc2_sqrt = (1.0 - cfg.beta2.powi(self.t.min(i32::MAX as u64) as i32)).sqrt();
+        params
+            .par_chunks_mut(CHUNK)
+            .zip(grads.par_chunks(CHUNK))
+            .zip(self.m.par_chunks_mut(CHUNK).zip(self.v.par_chunks_mut(CHUNK)))
+            .for_each(|((p, g), (m, v))| {
+                for i in 0..p.len() {
+                    update(&mut p[i], g[i], &mut m[i], &mut v[i], &cfg, cfg.lr, bc1, bc2_sqrt);
+                }
+            });
+    }
+}
+
+/// Lazy Adam over rows of `width` values (texels of a neural texture): a step updates only the
+/// rows it is given, and each row keeps its own step count for the bias correction.
+///
+/// Why per-row counts: a row's moments only ever see the steps that touched it, so with a
+/// global count a row first touched at step 1000 would get `mhat = 0.1 g / (1 - 0.9^1000)`,
+/// `vhat = 0.001 g^2`, an update of about 3 lr, where dense Adam starts with lr. With per-row
+/// counts each row behaves exactly like dense Adam on its own gradient sequence (untouched
+/// steps skipped, the moments not decayed across them, as TensorFlow's LazyAdam).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SparseAdam {
+    /// Hyper-parameters; `cfg.lr` is the learning rate.
+    pub cfg: AdamConfig,
+    width: usize,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: Vec<u32>,
+}
+
+impl SparseAdam {
+    /// State for `rows` rows of `width` values.
+    pub fn new(rows: usize, width: usize, cfg: AdamConfig) -> Self {
+        SparseAdam { cfg, width, m: vec![0.0; rows * width], v: vec![0.0; rows * width], t: vec![0; rows] }
+    }
+
+    /// Step count of `row`.
+    pub fn row_steps(&self, row: usize) -> u32 {
+        self.t[row]
+    }
+
+    /// Updates the rows listed in `rows` (each at most once, ascending order not required)
+    /// from `grads` (same layout as `params`), adding `decay * param` to each gradient first
+    /// (lazy L2: only touched rows decay), then zeroes those gradient rows.
+    pub fn step(&mut self, params: &mut [f32], grads: &mut [f32], rows: &[u32], decay: f32) {
+        let w = self.width;
+        assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "sparse adam: length");
+        let cfg = self.cfg;
+        let nrows = self.t.len();
+        // Rows are disjoint, so the per-row work runs on the fixed chunks of the row list with
+        // each row's slices found by index; results do not depend on the thread count.
+        let mut order: Vec<u32> = rows.to_vec();
+        order.sort_unstable();
+        assert!(order.windows(2).all(|p| p[0] != p[1]), "sparse adam: duplicate row");
+        assert!(order.last().is_none_or(|&r| (r as usize) < nrows), "sparse adam: row out of range");
+        let mut work: Vec<(&mut [f32], &mut [f32], &mut [f32], &mut [f32], &mut u32)> = Vec::with_capacity(order.len());
+        {
+            let mut p_rest = &mut params[..];
+            let mut g_rest = &mut grads[..];
+            let mut m_rest = &mut self.m[..];
+            let mut v_rest = &mut self.v[..];
+            let mut t_rest = &mut self.t[..];
+            let mut at = 0usize;
+            for &r in &order {
+                let skip = r as usize - at;
+                let (_, p) = std::mem::take(&mut p_rest).split_at_mut(skip * w);
+                let (p, pr) = p.split_at_mut(w);
+                let (_, g) = std::mem::take(&mut g_rest).split_at_mut(skip * w);
+                let (g, gr) = g.split_at_mut(w);
+                let (_, m) = std::mem::take(&mut m_rest).split_at_mut(skip * w);
+                let (m, mr) = m.split_at_mut(w);
+                let (_, v) = std::mem::take(&mut v_rest).split_at_mut(skip * w);
+                let (v, vr) = v.split_at_mut(w);
+                let (_, t) = std::mem::take(&mut t_rest).split_at_mut(skip);
+                let (t, tr) = t.split_at_mut(1);
+                work.push((p, g, m, v, &mut t[0]));
+                (p_rest, g_rest, m_rest, v_rest, t_rest) = (pr, gr, mr, vr, tr);
+                at = r as usize + 1;
+            }
+        }
+        work.par_chunks_mut(1024).for_each(|chunk| {
+            for (p, g, m, v, t) in chunk.iter_mut() {
+                **t += 1;
+                let ti = (**t).min(i32::MAX as u32) as i32;
+                let bc1 = 1.0 - cfg.beta1.powi(ti);
+                let bc2_sqrt = (1.0 - cfg.beta2.powi(ti)).sqrt();
+                for i in 0..p.len() {
+                    let gi = g[i] + decay * p[i];
+                    update(&mut p[i], gi, &mut m[i], &mut v[i], &cfg, cfg.lr, bc1, bc2_sqrt);
+                    g[i] = 0.0;
+                }
+            }
+        });
+    }
+}

@@ -1,0 +1,14 @@
+//! Training kernels: each backward beside the forward wrapper it differentiates (llm.c style:
+//! shapes stated at the top of each function, parameter gradients accumulated with `+=`).
+//! Forwards reuse `dnr_runtime::nn`, so what is trained is what the runtime draws.
+
+pub mod activation;
+pub mod adam;
+pub mod concat;
+pub mod conv;
+pub mod conv_transpose;
+pub mod dense;
+pub mod loss;
+pub mod norm;
+pub mod unet;
+pub mod upsample;

@@ -1,0 +1,587 @@
+//! Writes the conformance samples: `cargo run -p dnr-format --example make_samples -- samples`.
+//!
+//! Deterministic: every random value comes from a ChaCha8 generator with a fixed seed per
+//! sample, and every writer in `dnr-format` is deterministic, so running it twice gives
+//! identical bytes. The conformance tests include this file (`generate`) and compare
+//! its output with `samples/` so the samples cannot go stale.
+
+use std::collections::BTreeMap;
+use std::error::Error;
+use std::fs;
+use std::path::Path;
+
+use dnr_format::container::{glb_bytes, parse_glb};
+use dnr_format::exr_codec::{channel_name, encode_level};
+use dnr_format::model::{Decoder, DType, Normalization, Renderer, ViewDependence};
+use dnr_format::{
+    architecture_tensors, AssetBuilder, Container, LevelCompression, Limits, MaterialDesc,
+    NeuralTextureDesc, Node, Primitive, RendererDesc, TensorF32, TextureLevel, WrapMode,
+    EXTENSION_NAME,
+};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::{json, Value};
+
+type Res<T> = Result<T, Box<dyn Error>>;
+
+/// One generated file.
+pub struct Sample {
+    /// Path relative to the samples folder, e.g. `valid/mlp_f16.glb`.
+    pub path: String,
+    /// What it exercises.
+    pub description: String,
+    /// Validator codes it must produce (exactly this set), empty for valid samples.
+    pub expected: Vec<&'static str>,
+}
+
+#[allow(dead_code)]
+fn main() -> Res<()> {
+    let out = std::env::args().nth(1).unwrap_or_else(|| "samples".to_string());
+    let samples = generate(Path::new(&out))?;
+    println!("wrote {} samples to {out}", samples.len());
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------
+// Building blocks
+
+fn quad(size: f32, z: f32, material: usize) -> Primitive {
+    let s = size / 2.0;
+    Primitive {
+        positions: vec![[-s, -s, z], [s, -s, z], [s, s, z], [-s, s, z]],
+        normals: Some(vec![[0.0, 0.0, 1.0]; 4]),
+        // glTF uv (0,0) is the top-left of the image: the top edge (y = +s) gets v = 0.
+        tex_coords: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+        indices: vec![0, 1, 2, 0, 2, 3],
+        material: Some(material),
+    }
+}
+
+/// A tetrahedron-like open pyramid without normals (normals are optional).
+fn pyramid(material: usize) -> Primitive {
+    Primitive {
+        positions: vec![[0.0, 0.0, 0.5], [-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]],
+        normals: None,
+        tex_coords: vec![[0.5, 0.5], [0.0, 1.0], [1.0, 1.0], [0.5, 0.0]],
+        indices: vec![0, 1, 2, 0, 2, 3, 0, 3, 1],
+        material: Some(material),
+    }
+}
+
+/// Levels halving from `w` x `h` (rounding up), values shrinking with the level so the
+/// finest level dominates the fallback image.
+fn levels(rng: &mut ChaCha8Rng, w: u32, h: u32, channels: u32, count: usize) -> Vec<TextureLevel> {
+    let (mut w, mut h) = (w, h);
+    let mut out = Vec::new();
+    for l in 0..count {
+        let scale = 1.0 / (1u32 << l) as f32;
+        let n = (w * h * channels) as usize;
+        let data = (0..n)
+            .map(|_| (rng.random::<f32>() * 1.2 - 0.1) * scale)
+            .collect();
+        out.push(TextureLevel { width: w, height: h, channels, data });
+        w = w.div_ceil(2);
+        h = h.div_ceil(2);
+    }
+    out
+}
+
+fn tensors(rng: &mut ChaCha8Rng, r: &Renderer) -> Res<BTreeMap<String, TensorF32>> {
+    let mut out = BTreeMap::new();
+    for (name, shape) in architecture_tensors(r)? {
+        let n: usize = shape.iter().map(|&d| d as usize).product();
+        let fan_in: usize = shape.iter().skip(1).map(|&d| d as usize).product::<usize>().max(1);
+        let s = 1.0 / (fan_in as f32).sqrt();
+        let data = (0..n).map(|_| (rng.random::<f32>() * 2.0 - 1.0) * s).collect();
+        out.insert(name, TensorF32::new(shape, data)?);
+    }
+    Ok(out)
+}
+
+struct One {
+    channels: u32,
+    levels: usize,
+    size: (u32, u32),
+    wrap: (WrapMode, WrapMode),
+    sh: Option<ViewDependence>,
+    compression: LevelCompression,
+    renderer: Renderer,
+    dtype: DType,
+}
+
+/// A one-quad asset with one texture, one renderer, one material.
+fn single(seed: u64, o: One) -> Res<Container> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut b = AssetBuilder::new();
+    let t = b.add_neural_texture(NeuralTextureDesc {
+        levels: levels(&mut rng, o.size.0, o.size.1, o.channels, o.levels),
+        wrap_s: o.wrap.0,
+        wrap_t: o.wrap.1,
+        view_dependence: o.sh,
+        compression: o.compression,
+    });
+    let tensors = tensors(&mut rng, &o.renderer)?;
+    let r = b.add_renderer(RendererDesc { renderer: o.renderer, tensors, dtype: o.dtype });
+    let m = b.add_material(MaterialDesc { name: Some("neural".into()), neural_texture: t, renderer: r });
+    let mesh = b.add_mesh(Some("quad".into()), vec![quad(1.0, 0.0, m)]);
+    b.add_node(Node { name: Some("quad".into()), mesh: Some(mesh), ..Node::default() });
+    Ok(b.build_container()?)
+}
+
+fn one(channels: u32, renderer: Renderer) -> One {
+    One {
+        channels,
+        levels: 2,
+        size: (8, 8),
+        wrap: (WrapMode::Repeat, WrapMode::Repeat),
+        sh: None,
+        compression: LevelCompression::Zip,
+        renderer,
+        dtype: DType::F16,
+    }
+}
+
+fn quat(axis: [f32; 3], degrees: f32) -> [f32; 4] {
+    let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    let (s, c) = (degrees.to_radians() / 2.0).sin_cos();
+    [axis[0] / n * s, axis[1] / n * s, axis[2] / n * s, c]
+}
+
+/// Two nodes (one child, rotated and scaled), a two-primitive mesh and a second mesh, two
+/// materials with different textures (one with degree-3 SH) and renderers.
+fn scene(seed: u64) -> Res<Container> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut b = AssetBuilder::new();
+    let t0 = b.add_neural_texture(NeuralTextureDesc {
+        levels: levels(&mut rng, 16, 12, 4, 2),
+        wrap_s: WrapMode::ClampToEdge,
+        wrap_t: WrapMode::MirroredRepeat,
+        view_dependence: None,
+        compression: LevelCompression::Rle,
+    });
+    let t1 = b.add_neural_texture(NeuralTextureDesc {
+        levels: levels(&mut rng, 9, 7, 19, 2),
+        wrap_s: WrapMode::MirroredRepeat,
+        wrap_t: WrapMode::Repeat,
+        view_dependence: Some(ViewDependence::spherical_harmonics(3, 3)),
+        compression: LevelCompression::Piz,
+    });
+    let r0 = Renderer::new(dnr_format::model::Architecture::None, 4, 3);
+    let r0 = b.add_renderer(RendererDesc { tensors: tensors(&mut rng, &r0)?, renderer: r0, dtype: DType::F16 });
+    let r1 = Renderer::mlp(19, 4, vec![6]);
+    let r1 = b.add_renderer(RendererDesc { tensors: tensors(&mut rng, &r1)?, renderer: r1, dtype: DType::F32 });
+    let m0 = b.add_material(MaterialDesc { name: Some("plain".into()), neural_texture: t0, renderer: r0 });
+    let m1 = b.add_material(MaterialDesc { name: Some("view-dependent".into()), neural_texture: t1, renderer: r1 });
+    let two = b.add_mesh(Some("two-primitives".into()), vec![quad(1.0, 0.0, m0), quad(0.5, 0.25, m1)]);
+    let pyr = b.add_mesh(Some("pyramid".into()), vec![pyramid(m1)]);
+    let child = b.add_node(Node {
+        name: Some("child".into()),
+        mesh: Some(pyr),
+        translation: [0.0, 0.0, 0.75],
+        rotation: quat([1.0, 1.0, 0.0], 35.0),
+        scale: [0.5, 0.75, 1.25],
+        ..Node::default()
+    });
+    b.add_node(Node {
+        name: Some("parent".into()),
+        mesh: Some(two),
+        translation: [1.0, -0.5, 0.25],
+        rotation: quat([0.0, 1.0, 0.0], 30.0),
+        scale: [2.0, 2.0, 2.0],
+        children: vec![child],
+    });
+    b.add_node(Node {
+        name: Some("second".into()),
+        mesh: Some(two),
+        translation: [-1.5, 0.0, 0.0],
+        ..Node::default()
+    });
+    Ok(b.build_container()?)
+}
+
+// ---------------------------------------------------------------------------------------
+// Mutations for invalid samples
+
+fn glb(c: &Container) -> Res<Vec<u8>> {
+    Ok(c.to_glb()?)
+}
+
+/// Edits the JSON (and optionally the BIN chunk) of a GLB and reassembles it.
+fn edit(glb: &[u8], f: impl FnOnce(&mut Value, &mut Vec<u8>)) -> Res<Vec<u8>> {
+    let g = parse_glb(glb, &Limits::default()).map_err(|p| p.error)?;
+    let mut v: Value = serde_json::from_slice(g.json)?;
+    let mut bin = g.bin.unwrap_or(&[]).to_vec();
+    f(&mut v, &mut bin);
+    Ok(glb_bytes(&serde_json::to_vec(&v)?, Some(&bin))?)
+}
+
+fn ext(v: &mut Value) -> &mut Value {
+    &mut v["extensions"][EXTENSION_NAME]
+}
+
+fn as_usize(v: &Value) -> usize {
+    v.as_u64().unwrap_or(0) as usize
+}
+
+/// Appends `bytes` to the BIN chunk and points bufferView `view` at them.
+fn replace_view(v: &mut Value, bin: &mut Vec<u8>, view: usize, bytes: &[u8]) {
+    bin.resize(bin.len().next_multiple_of(4), 0);
+    let offset = bin.len();
+    bin.extend_from_slice(bytes);
+    bin.resize(bin.len().next_multiple_of(4), 0);
+    v["bufferViews"][view]["byteOffset"] = json!(offset);
+    v["bufferViews"][view]["byteLength"] = json!(bytes.len());
+    v["buffers"][0]["byteLength"] = json!(bin.len());
+}
+
+/// Byte range of weight descriptor `w` of renderer 0 in the BIN chunk.
+fn weight_range(v: &Value, w: usize) -> (usize, usize) {
+    let d = &v["extensions"][EXTENSION_NAME]["renderers"][0]["weights"][w];
+    let view = &v["bufferViews"][as_usize(&d["bufferView"])];
+    let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
+    let n: usize = d["shape"].as_array().map_or(0, |s| s.iter().map(as_usize).product());
+    let size = if d["dtype"] == "f16" { 2 } else { 4 };
+    (start, start + n * size)
+}
+
+/// An EXR level written with the `exr` crate directly, bypassing our encoder's checks.
+fn raw_exr(w: usize, h: usize, channels: u32, compression: exr::compression::Compression, poison: bool) -> Res<Vec<u8>> {
+    use exr::prelude::*;
+    let mut list = SmallVec::<[AnyChannel<FlatSamples>; 4]>::new();
+    for c in 0..channels {
+        let mut plane: Vec<f16> = (0..w * h).map(|i| f16::from_f32(((i as u32 + c) % 7) as f32 * 0.1)).collect();
+        if poison && c == 0 {
+            plane[w * h / 2] = f16::NAN;
+        }
+        list.push(AnyChannel::new(channel_name(c, channels).as_str(), FlatSamples::F16(plane)));
+    }
+    let enc = Encoding { compression, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+    let image = Image::from_layer(Layer::new((w, h), LayerAttributes::default(), enc, AnyChannels::sort(list)));
+    let mut out = std::io::Cursor::new(Vec::new());
+    image.write().non_parallel().to_buffered(&mut out)?;
+    Ok(out.into_inner())
+}
+
+// ---------------------------------------------------------------------------------------
+
+struct Writer<'a> {
+    dir: &'a Path,
+    samples: Vec<Sample>,
+}
+
+impl Writer<'_> {
+    fn put(&mut self, path: &str, bytes: &[u8], description: &str, expected: &[&'static str]) -> Res<()> {
+        let full = self.dir.join(path);
+        if let Some(parent) = full.parent() {
+            fs::create_dir_all(parent)?;
+        }
+        fs::write(&full, bytes)?;
+        self.samples.push(Sample {
+            path: path.to_string(),
+            description: description.to_string(),
+            expected: expected.to_vec(),
+        });
+        Ok(())
+    }
+}
+
+/// Writes every sample, `README.md` and `expected.json` under `dir`; returns the list.
+pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
+    let mut w = Writer { dir, samples: Vec::new() };
+    use dnr_format::model::Architecture as A;
+    use LevelCompression as LC;
+    use WrapMode as WM;
+
+    // ---- valid
+    let none = single(1, One {
+        levels: 1,
+        size: (8, 8),
+        compression: LC::None,
+        ..one(3, Renderer::new(A::None, 3, 3))
+    })?;
+    w.put("valid/none_1level.glb", &glb(&none)?, "architecture none, 3 channels, 1 level 8x8, REPEAT, EXR NONE", &[])?;
+
+    let none_sh = single(2, One {
+        levels: 2,
+        size: (13, 11),
+        wrap: (WM::ClampToEdge, WM::ClampToEdge),
+        sh: Some(ViewDependence::spherical_harmonics(1, 3)),
+        compression: LC::Rle,
+        ..one(7, Renderer::new(A::None, 7, 4))
+    })?;
+    w.put("valid/none_sh1_clamp.glb", &glb(&none_sh)?, "none with 4 output channels, SH degree 1 on channels 3..7, 2 odd-sized levels 13x11, CLAMP_TO_EDGE, EXR RLE", &[])?;
+
+    let mlp16 = single(3, One {
+        wrap: (WM::MirroredRepeat, WM::MirroredRepeat),
+        compression: LC::Zips,
+        ..one(6, Renderer::mlp(6, 3, vec![8]))
+    })?;
+    w.put("valid/mlp_f16_2levels.glb", &glb(&mlp16)?, "mlp hidden [8], 6 channels, 2 levels 8x8, f16 weights, MIRRORED_REPEAT, EXR ZIPS", &[])?;
+
+    let mlp32 = single(4, One {
+        levels: 4,
+        size: (33, 17),
+        sh: Some(ViewDependence::spherical_harmonics(2, 3)),
+        compression: LC::Zip,
+        dtype: DType::F32,
+        ..one(12, Renderer::mlp(12, 4, vec![8, 8]))
+    })?;
+    w.put("valid/mlp_f32_sh2_4levels.glb", &glb(&mlp32)?, "mlp hidden [8, 8], RGBA output, SH degree 2 on channels 3..12, 4 levels from 33x17, f32 weights, EXR ZIP", &[])?;
+
+    let mlp0 = single(5, One {
+        levels: 1,
+        size: (5, 3),
+        wrap: (WM::Repeat, WM::ClampToEdge),
+        compression: LC::Piz,
+        ..one(4, Renderer::mlp(4, 3, vec![]))
+    })?;
+    w.put("valid/mlp_linear.gltf", &mlp0.to_gltf_embedded()?, "mlp without hidden layers, .gltf with an embedded data: URI buffer, 1 level 5x3, REPEAT/CLAMP_TO_EDGE, EXR PIZ", &[])?;
+
+    let unet_t = single(6, One {
+        size: (31, 29),
+        compression: LC::Zip,
+        ..one(8, Renderer::unet(8, 4, vec![4, 8], Decoder::TransposedConv, Normalization::Instance))
+    })?;
+    w.put("valid/unet_transposed_instance_f16.glb", &glb(&unet_t)?, "unet widths [4, 8], transposedConv, instance norm, RGBA, 2 levels from 31x29, f16", &[])?;
+
+    let unet_u = single(7, One {
+        levels: 1,
+        size: (16, 16),
+        sh: Some(ViewDependence::spherical_harmonics(0, 7)),
+        dtype: DType::F32,
+        ..one(8, Renderer::unet(8, 3, vec![4, 8], Decoder::UpsampleConv, Normalization::None))
+    })?;
+    w.put("valid/unet_upsample_none_f32.glb", &glb(&unet_u)?, "unet widths [4, 8], upsampleConv, no norm, RGB, SH degree 0 on channel 7, 1 level 16x16, f32", &[])?;
+
+    let unet_1 = single(8, One {
+        levels: 4,
+        size: (20, 20),
+        wrap: (WM::MirroredRepeat, WM::Repeat),
+        ..one(4, Renderer::unet(4, 3, vec![4], Decoder::TransposedConv, Normalization::None))
+    })?;
+    let dir_valid = dir.join("valid");
+    fs::create_dir_all(&dir_valid)?;
+    unet_1.write_gltf_external(&dir_valid.join("unet_depth1_external.gltf"))?;
+    w.samples.push(Sample {
+        path: "valid/unet_depth1_external.gltf".into(),
+        description: "unet of depth 1 (no skip connections), .gltf with external unet_depth1_external.bin, 4 levels from 20x20".into(),
+        expected: vec![],
+    });
+
+    let sc = scene(9)?;
+    w.put("valid/scene_multi_primitive.glb", &glb(&sc)?, "3 nodes (child with rotation + non-uniform scale), a 2-primitive mesh instanced twice, a pyramid without normals, 2 materials/textures/renderers (none; mlp with SH degree 3, 19 channels, f32), CLAMP_TO_EDGE/MIRRORED_REPEAT, EXR RLE and PIZ", &[])?;
+
+    // ---- invalid, derived from the valid ones
+    let base = glb(&mlp16)?;
+    let half = &base[..base.len() / 2];
+    w.put("invalid/truncated.glb", half, "GLB cut to half its length", &["GLB_TRUNCATED"])?;
+    let mut bad = base.clone();
+    bad[0] = b'x';
+    w.put("invalid/bad_magic.glb", &bad, "GLB magic is not glTF", &["GLB_INVALID_HEADER"])?;
+    let mut bad = base.clone();
+    bad[4] = 3;
+    w.put("invalid/glb_version_3.glb", &bad, "GLB container version 3", &["GLB_INVALID_HEADER"])?;
+    let mut bad = base.clone();
+    bad[16..20].copy_from_slice(&0x004E_4942u32.to_le_bytes());
+    w.put("invalid/glb_first_chunk_bin.glb", &bad, "first chunk typed BIN instead of JSON", &["GLB_CHUNK_INVALID"])?;
+    let mut bad = base.clone();
+    bad[20] = b'[';
+    w.put("invalid/json_syntax.glb", &bad, "JSON chunk starts with `[` where `{` was: not well-formed", &["JSON_INVALID"])?;
+
+    let json_schema = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!("eight"))?;
+    w.put("invalid/level_width_string.glb", &json_schema, "a level's width is a string", &["JSON_SCHEMA"])?;
+
+    let out = edit(&base, |v, _| {
+        let len = as_usize(&v["buffers"][0]["byteLength"]);
+        v["bufferViews"][0]["byteLength"] = json!(len + 64);
+    })?;
+    w.put("invalid/buffer_view_out_of_range.glb", &out, "bufferView 0 reaches 64 bytes past the buffer", &["BUFFER_VIEW_OUT_OF_RANGE"])?;
+
+    let out = edit(&base, |v, _| v["materials"][0]["extensions"][EXTENSION_NAME]["neuralTexture"] = json!(5))?;
+    w.put("invalid/material_texture_index.glb", &out, "material refers to neural texture 5 of 1", &["INDEX_OUT_OF_RANGE"])?;
+
+    let out = edit(&base, |v, _| {
+        let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
+        let len = as_usize(&v["bufferViews"][view]["byteLength"]);
+        v["bufferViews"][view]["byteLength"] = json!(len / 2);
+    })?;
+    w.put("invalid/exr_truncated.glb", &out, "level 0's bufferView holds only the first half of its EXR file", &["EXR_INVALID"])?;
+
+    let exr5 = encode_level(&TextureLevel::zeros(8, 8, 5), 0, LC::Zip)?;
+    let out = edit(&base, |v, bin| {
+        let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
+        replace_view(v, bin, view, &exr5);
+    })?;
+    w.put("invalid/exr_channel_count.glb", &out, "level 0's EXR has 5 channels, the texture declares 6", &["EXR_CHANNELS"])?;
+
+    let exr_b44 = raw_exr(8, 8, 6, exr::compression::Compression::B44, false)?;
+    let out = edit(&base, |v, bin| {
+        let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
+        replace_view(v, bin, view, &exr_b44);
+    })?;
+    w.put("invalid/exr_lossy_b44.glb", &out, "level 0's EXR uses lossy B44 compression", &["EXR_COMPRESSION"])?;
+
+    let exr_nan = raw_exr(8, 8, 6, exr::compression::Compression::ZIP16, true)?;
+    let out = edit(&base, |v, bin| {
+        let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
+        replace_view(v, bin, view, &exr_nan);
+    })?;
+    w.put("invalid/exr_nan.glb", &out, "level 0's EXR holds a NaN half", &["EXR_NON_FINITE"])?;
+
+    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][1]["height"] = json!(5))?;
+    w.put("invalid/exr_size_mismatch.glb", &out, "level 1 declares 4x5, its EXR is 4x4", &["EXR_SIZE_MISMATCH"])?;
+
+    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"] = json!([]))?;
+    w.put("invalid/texture_no_levels.glb", &out, "neural texture with an empty levels array", &["TEXTURE_NO_LEVELS"])?;
+
+    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/png"))?;
+    w.put("invalid/texture_mime_type.glb", &out, "level mimeType image/png", &["TEXTURE_MIME_TYPE"])?;
+
+    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["channels"] = json!(0))?;
+    w.put("invalid/texture_zero_channels.glb", &out, "texture declares 0 channels (so it also mismatches the renderer)", &["TEXTURE_CHANNELS_RANGE", "RENDERER_INPUT_MISMATCH"])?;
+
+    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!(100000))?;
+    w.put("invalid/limit_texture_side.glb", &out, "level 0 declares width 100000, above the default side limit 16384", &["LIMIT_EXCEEDED"])?;
+
+    let sh_base = glb(&none_sh)?;
+    let out = edit(&sh_base, |v, _| ext(v)["neuralTextures"][0]["viewDependence"]["degree"] = json!(4))?;
+    w.put("invalid/sh_degree_4.glb", &out, "SH degree 4", &["SH_DEGREE_UNSUPPORTED"])?;
+    let out = edit(&sh_base, |v, _| ext(v)["neuralTextures"][0]["viewDependence"]["firstChannel"] = json!(4))?;
+    w.put("invalid/sh_channels_out_of_range.glb", &out, "SH degree 1 from channel 4 needs channels 4..8 of 7", &["SH_CHANNELS_OUT_OF_RANGE"])?;
+
+    let out = edit(&base, |v, _| ext(v)["renderers"][0]["architecture"] = json!("transformer"))?;
+    w.put("invalid/unknown_architecture.glb", &out, "architecture `transformer`", &["RENDERER_UNKNOWN_ARCHITECTURE"])?;
+
+    let unet_base = glb(&unet_t)?;
+    let out = edit(&unet_base, |v, _| ext(v)["renderers"][0]["decoder"] = json!("pixelShuffle"))?;
+    w.put("invalid/unet_unknown_decoder.glb", &out, "unet decoder `pixelShuffle`", &["RENDERER_PARAMETER_INVALID"])?;
+    let out = edit(&unet_base, |v, _| ext(v)["renderers"][0]["widths"] = json!([]))?;
+    w.put("invalid/unet_no_widths.glb", &out, "unet with empty widths", &["RENDERER_PARAMETER_INVALID"])?;
+
+    let out = edit(&base, |v, _| ext(v)["renderers"][0]["outputChannels"] = json!(5))?;
+    w.put("invalid/output_channels_5.glb", &out, "outputChannels 5", &["RENDERER_OUTPUT_CHANNELS"])?;
+
+    let out = edit(&base, |v, _| ext(v)["renderers"][0]["inputChannels"] = json!(5))?;
+    w.put("invalid/renderer_input_mismatch.glb", &out, "renderer takes 5 channels, texture has 6 (so layers.0.weight has the wrong shape too)", &["RENDERER_INPUT_MISMATCH", "WEIGHTS_SHAPE_MISMATCH"])?;
+
+    let out = edit(&base, |v, _| {
+        if let Some(a) = ext(v)["renderers"][0]["weights"].as_array_mut() {
+            a.remove(1);
+        }
+    })?;
+    w.put("invalid/weights_missing.glb", &out, "descriptor of layers.0.bias removed", &["WEIGHTS_MISSING"])?;
+
+    let out = edit(&base, |v, _| {
+        let mut extra = ext(v)["renderers"][0]["weights"][1].clone();
+        extra["name"] = json!("layers.9.bias");
+        if let Some(a) = ext(v)["renderers"][0]["weights"].as_array_mut() {
+            a.push(extra);
+        }
+    })?;
+    w.put("invalid/weights_unexpected.glb", &out, "an extra tensor layers.9.bias", &["WEIGHTS_UNEXPECTED"])?;
+
+    let out = edit(&base, |v, _| ext(v)["renderers"][0]["weights"][1]["shape"] = json!([2, 4]))?;
+    w.put("invalid/weights_shape_mismatch.glb", &out, "layers.0.bias declared [2, 4] instead of [8] (same byte count)", &["WEIGHTS_SHAPE_MISMATCH"])?;
+
+    let out = edit(&base, |v, _| ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("bf16"))?;
+    w.put("invalid/weights_dtype_bf16.glb", &out, "dtype bf16", &["WEIGHTS_DTYPE_UNKNOWN"])?;
+
+    let out = edit(&base, |v, bin| {
+        // Shift layers.0.bias by 2 bytes and fix its checksum, so only the alignment is wrong.
+        let off = as_usize(&ext(v)["renderers"][0]["weights"][1]["byteOffset"]);
+        ext(v)["renderers"][0]["weights"][1]["byteOffset"] = json!(off + 2);
+        let (s, e) = weight_range(v, 1);
+        let crc = crc32fast::hash(&bin[s..e]);
+        ext(v)["renderers"][0]["weights"][1]["crc32"] = json!(crc);
+    })?;
+    w.put("invalid/weights_misaligned.glb", &out, "layers.0.bias at byteOffset + 2 (checksum matching the shifted bytes)", &["WEIGHTS_MISALIGNED"])?;
+
+    let out = edit(&base, |v, _| {
+        let crc = ext(v)["renderers"][0]["weights"][2]["crc32"].as_u64().unwrap_or(0);
+        ext(v)["renderers"][0]["weights"][2]["crc32"] = json!(crc ^ 1);
+    })?;
+    w.put("invalid/weights_checksum.glb", &out, "crc32 of layers.1.weight off by one bit", &["WEIGHTS_CHECKSUM_MISMATCH"])?;
+
+    let out = edit(&base, |v, bin| {
+        let (s, e) = weight_range(v, 0);
+        bin[s..s + 2].copy_from_slice(&half::f16::NAN.to_le_bytes());
+        let crc = crc32fast::hash(&bin[s..e]);
+        ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
+    })?;
+    w.put("invalid/weights_nan.glb", &out, "layers.0.weight holds a NaN (checksum updated)", &["WEIGHTS_NON_FINITE"])?;
+
+    let out = edit(&base, |v, _| ext(v)["renderers"][0]["weights"][0]["byteOffset"] = json!(1 << 20))?;
+    w.put("invalid/weights_past_view.glb", &out, "layers.0.weight starts 1 MiB into a small bufferView", &["BUFFER_VIEW_OUT_OF_RANGE"])?;
+
+    let out = edit(&base, |v, _| {
+        v["extensionsRequired"] = json!([EXTENSION_NAME]);
+        if let Some(p) = v["materials"][0]["pbrMetallicRoughness"].as_object_mut() {
+            p.remove("baseColorTexture");
+        }
+    })?;
+    w.put("invalid/required_without_fallback.glb", &out, "extension in extensionsRequired and the material has no baseColorTexture", &["EXTENSION_REQUIRED", "FALLBACK_MISSING"])?;
+
+    let out = edit(&base, |v, _| v["extensionsUsed"] = json!(["KHR_materials_unlit"]))?;
+    w.put("invalid/extension_not_used.glb", &out, "extension missing from extensionsUsed", &["EXTENSION_NOT_USED"])?;
+
+    let out = edit(&base, |v, _| ext(v)["version"] = json!(2))?;
+    w.put("invalid/version_2.glb", &out, "extension version 2", &["VERSION_UNSUPPORTED"])?;
+
+    let out = edit(&base, |v, _| v["materials"][0]["extensions"][EXTENSION_NAME]["texCoord"] = json!(1))?;
+    w.put("invalid/texcoord_missing.glb", &out, "material addresses TEXCOORD_1, the primitive has only TEXCOORD_0 (a warning: exit code 0)", &["TEXCOORD_MISSING"])?;
+
+    // Levels listed coarsest first: a warning only.
+    let mut rng = ChaCha8Rng::seed_from_u64(10);
+    let mut lv = levels(&mut rng, 8, 8, 3, 2);
+    lv.reverse();
+    let mut b = AssetBuilder::new();
+    let t = b.add_neural_texture(NeuralTextureDesc {
+        levels: lv,
+        wrap_s: WM::Repeat,
+        wrap_t: WM::Repeat,
+        view_dependence: None,
+        compression: LC::Zip,
+    });
+    let r = b.add_renderer(RendererDesc { renderer: Renderer::new(A::None, 3, 3), tensors: BTreeMap::new(), dtype: DType::F16 });
+    let m = b.add_material(MaterialDesc { name: None, neural_texture: t, renderer: r });
+    let mesh = b.add_mesh(None, vec![quad(1.0, 0.0, m)]);
+    b.add_node(Node { mesh: Some(mesh), ..Node::default() });
+    w.put("invalid/levels_coarse_first.glb", &glb(&b.build_container()?)?, "levels listed 4x4 then 8x8 (a warning: exit code 0)", &["TEXTURE_LEVEL_ORDER"])?;
+
+    let mut gltf: Value = serde_json::from_slice(&mlp0.to_gltf_embedded()?)?;
+    gltf["buffers"][0]["uri"] = json!("missing.bin");
+    let mut text = serde_json::to_vec_pretty(&gltf)?;
+    text.push(b'\n');
+    w.put("invalid/missing_external_buffer.gltf", &text, ".gltf whose buffer is an external file that does not exist", &["BUFFER_INVALID"])?;
+
+    write_index(dir, &w.samples)?;
+    Ok(w.samples)
+}
+
+fn write_index(dir: &Path, samples: &[Sample]) -> Res<()> {
+    let mut expected = serde_json::Map::new();
+    for s in samples {
+        expected.insert(s.path.clone(), json!(s.expected));
+    }
+    let mut text = serde_json::to_vec_pretty(&Value::Object(expected))?;
+    text.push(b'\n');
+    fs::write(dir.join("expected.json"), text)?;
+
+    let mut md = String::from(
+        "# Conformance samples\n\n\
+         Generated by `cargo run -p dnr-format --example make_samples -- samples` (deterministic,\n\
+         fixed seeds); do not edit by hand. `tests/conformance.rs` regenerates them and fails if\n\
+         these files differ. `expected.json` maps each file to the exact set of validator codes it\n\
+         must produce (`[]` for valid files, which must also have no warnings and round-trip\n\
+         byte-identically). `dnr validate` exits 1 on the invalid files except those whose only\n\
+         codes are warnings (`TEXCOORD_MISSING`, `TEXTURE_LEVEL_ORDER`), where it exits 0.\n\n\
+         | file | exercises | expected codes |\n|---|---|---|\n",
+    );
+    for s in samples {
+        let codes = if s.expected.is_empty() { "none".to_string() } else { s.expected.join(", ") };
+        md.push_str(&format!("| `{}` | {} | {} |\n", s.path, s.description, codes));
+    }
+    md.push_str("\n`valid/unet_depth1_external.bin` is the external buffer of `valid/unet_depth1_external.gltf`.\n");
+    fs::write(dir.join("README.md"), md)?;
+    Ok(())
+}

@@ -1,0 +1,272 @@
+//! The U-Net deferred neural renderer (`architecture: "unet"` in `docs/DESIGN.md`).
+//!
+//! Encoder i: conv 4x4 s2 p1 to `w_i`, norm, LeakyReLU(0.2). Decoder i = D-1 .. 1: up_i to
+//! `w_(i-1)`, norm, LeakyReLU, concat with encoder i-1 (decoder channels first). Last: up_0 to
+//! `out_ch`, tanh. The input is zero-padded at the bottom/right to a multiple of 2^D and the
+//! output cropped back.
+
+use super::{check_no_extra, fetch_tensors, map_lookup, NetworkError, TensorRef};
+use crate::nn::activation::{leaky_relu, tanh, LEAKY_SLOPE};
+use crate::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
+use crate::nn::conv_transpose::TconvLayout;
+use crate::nn::gemm::PackedA;
+use crate::nn::norm::instance_norm;
+use crate::nn::upsample::upsample_nearest2;
+use crate::nn::{NnError, Tensor};
+use std::collections::BTreeMap;
+
+/// How the decoder doubles the resolution.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Decoder {
+    /// Transposed convolution 4x4 stride 2 padding 1, weight `[c_in, c_out, 4, 4]`.
+    TransposedConv,
+    /// Nearest x2 upsample, then conv 3x3 stride 1 padding 1, weight `[c_out, c_in, 3, 3]`.
+    UpsampleConv,
+}
+
+/// Normalisation after every conv but the last.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Norm {
+    /// Instance norm without affine parameters (eps 1e-5, biased variance).
+    Instance,
+    /// None.
+    None,
+}
+
+/// Architecture of a U-Net renderer.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct UNetParams {
+    /// Input (feature) channels.
+    pub in_ch: usize,
+    /// Output channels (3 or 4 for a renderer).
+    pub out_ch: usize,
+    /// Encoder widths `w_0 .. w_(D-1)`, 1 <= D <= 8.
+    pub widths: Vec<usize>,
+    /// Decoder kind.
+    pub decoder: Decoder,
+    /// Normalisation.
+    pub norm: Norm,
+}
+
+/// Maximum depth.
+pub const MAX_DEPTH: usize = 8;
+
+impl UNetParams {
+    /// Depth D.
+    pub fn depth(&self) -> usize {
+        self.widths.len()
+    }
+
+    /// Checks the ranges of the parameters.
+    pub fn validate(&self) -> Result<(), NetworkError> {
+        let d = self.depth();
+        if d == 0 || d > MAX_DEPTH {
+            return Err(NetworkError::Params(format!("U-Net depth {d} outside 1..={MAX_DEPTH}")));
+        }
+        if self.in_ch == 0 || self.out_ch == 0 || self.widths.contains(&0) {
+            return Err(NetworkError::Params("U-Net channel counts must be positive".into()));
+        }
+        Ok(())
+    }
+
+    /// Input and output channels of decoder `i`.
+    pub fn decoder_channels(&self, i: usize) -> (usize, usize) {
+        let d = self.depth();
+        let c_in = if i == d - 1 { self.widths[d - 1] } else { 2 * self.widths[i] };
+        let c_out = if i == 0 { self.out_ch } else { self.widths[i - 1] };
+        (c_in, c_out)
+    }
+
+    /// Input channels of encoder `i`.
+    pub fn encoder_in(&self, i: usize) -> usize {
+        if i == 0 {
+            self.in_ch
+        } else {
+            self.widths[i - 1]
+        }
+    }
+
+    /// Geometry of encoder `i`.
+    pub fn encoder_geom(&self, i: usize) -> ConvGeom {
+        ConvGeom { c_in: self.encoder_in(i), c_out: self.widths[i], k: 4, stride: 2, pad: 1 }
+    }
+
+    /// Geometry of the 3x3 conv of decoder `i` (upsampleConv).
+    pub fn decoder_geom(&self, i: usize) -> ConvGeom {
+        let (c_in, c_out) = self.decoder_channels(i);
+        ConvGeom { c_in, c_out, k: 3, stride: 1, pad: 1 }
+    }
+
+    /// Every tensor the architecture names with its shape, encoder first.
+    pub fn tensor_specs(&self) -> Vec<(String, Vec<usize>)> {
+        let mut v = Vec::new();
+        for i in 0..self.depth() {
+            v.push((format!("encoder.{i}.weight"), vec![self.widths[i], self.encoder_in(i), 4, 4]));
+            v.push((format!("encoder.{i}.bias"), vec![self.widths[i]]));
+        }
+        for i in 0..self.depth() {
+            let (ci, co) = self.decoder_channels(i);
+            let shape = match self.decoder {
+                Decoder::TransposedConv => vec![ci, co, 4, 4],
+                Decoder::UpsampleConv => vec![co, ci, 3, 3],
+            };
+            v.push((format!("decoder.{i}.weight"), shape));
+            v.push((format!("decoder.{i}.bias"), vec![co]));
+        }
+        v
+    }
+
+    /// Padded frame size for an `h x w` image (multiples of 2^D).
+    pub fn padded_size(&self, h: usize, w: usize) -> (usize, usize) {
+        let p = 1usize << self.depth();
+        (h.div_ceil(p) * p, w.div_ceil(p) * p)
+    }
+
+    /// Convolution FLOPs (2 per multiply-add, bias, norm and activations excluded) of one
+    /// forward pass on an `h x w` image, counted on the padded frame.
+    pub fn flops(&self, h: usize, w: usize) -> u64 {
+        let (mut hh, mut ww) = self.padded_size(h, w);
+        let mut macs = 0u64;
+        for i in 0..self.depth() {
+            macs += self.encoder_geom(i).macs(hh, ww);
+            hh /= 2;
+            ww /= 2;
+        }
+        for i in (0..self.depth()).rev() {
+            let (ci, co) = self.decoder_channels(i);
+            macs += match self.decoder {
+                Decoder::TransposedConv => (hh * ww * ci * co * 16) as u64,
+                Decoder::UpsampleConv => (4 * hh * ww * ci * co * 9) as u64,
+            };
+            hh *= 2;
+            ww *= 2;
+        }
+        2 * macs
+    }
+}
+
+/// Weights of one convolution with its packed GEMM form.
+#[derive(Clone, Debug)]
+struct Layer {
+    bias: Vec<f32>,
+    /// One packed A per GEMM: conv 1, transposed conv 4 (phases).
+    packed: Vec<PackedA>,
+}
+
+/// A U-Net with validated weights, ready to run.
+#[derive(Clone, Debug)]
+pub struct UNet {
+    params: UNetParams,
+    enc: Vec<Layer>,
+    dec: Vec<Layer>,
+}
+
+impl UNet {
+    /// Builds the network, fetching every tensor of [`UNetParams::tensor_specs`] through
+    /// `lookup` and checking its shape. (Extra tensors cannot be seen through a lookup; see
+    /// [`UNet::from_map`] or [`super::check_no_extra`].)
+    pub fn new<'a>(params: UNetParams, lookup: &dyn Fn(&str) -> Option<TensorRef<'a>>) -> Result<Self, NetworkError> {
+        params.validate()?;
+        let specs = params.tensor_specs();
+        let mut vals = fetch_tensors(&specs, lookup)?.into_iter();
+        let d = params.depth();
+        let mut enc = Vec::with_capacity(d);
+        for i in 0..d {
+            let (w, b) = (vals.next().expect("spec"), vals.next().expect("spec"));
+            enc.push(Layer { bias: b, packed: vec![pack_conv_weights(params.encoder_geom(i), &w)] });
+        }
+        let mut dec = Vec::with_capacity(d);
+        for i in 0..d {
+            let (w, b) = (vals.next().expect("spec"), vals.next().expect("spec"));
+            let packed = match params.decoder {
+                Decoder::TransposedConv => {
+                    let (ci, co) = params.decoder_channels(i);
+                    let l = TconvLayout::new(ci, co, 1, 1);
+                    (0..4).map(|ph| l.pack_weights(&w, ph)).collect()
+                }
+                Decoder::UpsampleConv => vec![pack_conv_weights(params.decoder_geom(i), &w)],
+            };
+            dec.push(Layer { bias: b, packed });
+        }
+        Ok(UNet { params, enc, dec })
+    }
+
+    /// Builds the network from a map of `name -> (shape, values)`; names the architecture does
+    /// not list are an error.
+    pub fn from_map(params: UNetParams, map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>) -> Result<Self, NetworkError> {
+        params.validate()?;
+        check_no_extra(&params.tensor_specs(), map.keys().map(String::as_str))?;
+        Self::new(params, &map_lookup(map))
+    }
+
+    /// The architecture.
+    pub fn params(&self) -> &UNetParams {
+        &self.params
+    }
+
+    /// Output (after tanh, in [-1, 1]) for a `in_ch x H x W` feature image; `out_ch x H x W`.
+    pub fn forward(&self, x: &Tensor) -> Result<Tensor, NnError> {
+        let p = &self.params;
+        if x.c != p.in_ch {
+            return Err(NnError::Shape(format!("U-Net expects {} input channels, got {}", p.in_ch, x.c)));
+        }
+        if x.h == 0 || x.w == 0 {
+            return Ok(Tensor::zeros(p.out_ch, x.h, x.w));
+        }
+        let (hp, wp) = p.padded_size(x.h, x.w);
+        let d = p.depth();
+        let mut skips: Vec<Tensor> = Vec::with_capacity(d);
+        let mut cur = x.pad_bottom_right(hp, wp);
+        for i in 0..d {
+            let g = p.encoder_geom(i);
+            let l = ConvLayout::new(g, cur.h, cur.w)?;
+            let raw = l.gemm(&self.enc[i].packed[0], &l.gather(&cur));
+            let mut y = l.finish(&raw, Some(&self.enc[i].bias));
+            self.norm_act(&mut y);
+            skips.push(y.clone());
+            cur = y;
+        }
+        let mut cur = skips.pop().expect("depth >= 1");
+        for i in (0..d).rev() {
+            let mut y = self.up(i, &cur)?;
+            if i == 0 {
+                tanh(&mut y.data);
+                return Ok(y.crop_top_left(x.h, x.w));
+            }
+            self.norm_act(&mut y);
+            cur = y.concat(&skips.pop().expect("skip per level"))?;
+        }
+        unreachable!("the loop returns at i = 0")
+    }
+
+    fn norm_act(&self, y: &mut Tensor) {
+        if self.params.norm == Norm::Instance {
+            instance_norm(y);
+        }
+        leaky_relu(&mut y.data, LEAKY_SLOPE);
+    }
+
+    /// Decoder `i` (no norm or activation).
+    fn up(&self, i: usize, x: &Tensor) -> Result<Tensor, NnError> {
+        let layer = &self.dec[i];
+        let (ci, co) = self.params.decoder_channels(i);
+        match self.params.decoder {
+            Decoder::TransposedConv => {
+                let l = TconvLayout::new(ci, co, x.h, x.w);
+                let buf = l.gather(x);
+                let mut out = Tensor::zeros(co, 2 * x.h, 2 * x.w);
+                for ph in 0..4 {
+                    let raw = l.gemm(&layer.packed[ph], &buf, ph);
+                    l.interleave(&raw, ph, Some(&layer.bias), &mut out);
+                }
+                Ok(out)
+            }
+            Decoder::UpsampleConv => {
+                let u = upsample_nearest2(x);
+                let l = ConvLayout::new(self.params.decoder_geom(i), u.h, u.w)?;
+                let raw = l.gemm(&layer.packed[0], &l.gather(&u));
+                Ok(l.finish(&raw, Some(&layer.bias)))
+            }
+        }
+    }
+}

@@ -1,0 +1,436 @@
+//! The viewer API: load an `EXT_deferred_neural_rendering` asset once, then draw frames.
+//!
+//! A [`Renderer`] holds the scene's triangles (with node transforms), one sampling pyramid
+//! per neural texture and one network per renderer of the asset. [`Renderer::render`]
+//! rasterises a camera's view and shades it; [`Renderer::shade`] shades a G-buffer that a
+//! viewer's own (GPU) rasteriser produced.
+//!
+//! What a frame does (spec "Evaluating a Frame" and "Compositing Several Renderers"):
+//!
+//! 1. Each covered pixel belongs to the material of its visible primitive. Pixels of
+//!    materials with the extension belong to that material's renderer; pixels of other
+//!    materials are *core* pixels; uncovered pixels are *background*.
+//! 2. Each renderer that owns at least one pixel runs once, on a feature image in which
+//!    only its own pixels are covered: `F` summed over the levels of the pixel's material's
+//!    neural texture, multiplied by the spherical harmonics of the local view direction
+//!    where the texture has `viewDependence`. Renderers that own no pixel do no work; `none`
+//!    runs no network; `none` and `mlp` touch only their own pixels.
+//! 3. Output: at a renderer's own pixels its colour and alpha (alpha = coverage = 1 for
+//!    3-channel outputs, `(t3 + 1) / 2` for 4-channel outputs); at core pixels
+//!    `(0, 0, 0, 0)`; at background pixels the 4-channel `unet` outputs composited
+//!    source-over in ascending renderer index. Non-finite outputs become 0.
+//!
+//! The result is the neural layer ([`RgbaImage`]: sRGB-encoded colour, straight alpha). The
+//! CPU renderer does not shade core materials: a viewer composites the layer over its own
+//! image of everything else.
+//!
+//! Errors are typed ([`RendererError`]); a bad asset or G-buffer never panics.
+
+mod image;
+mod net;
+mod shade;
+
+use std::path::Path;
+
+use dnr_format::{Asset, DecodedTexture, WrapMode};
+
+use crate::camera::Camera;
+use crate::gbuffer::GBuffer;
+use crate::network::NetworkError;
+use crate::nn::NnError;
+use crate::raster::{self, rasterize};
+use crate::scene::{from_gltf_slice, Scene, SceneError};
+use crate::sh;
+use crate::texture::{Level, Pyramid, TextureError, Wrap};
+
+pub use image::{quantize, RgbaImage};
+use net::Net;
+
+/// Most pixels of one frame (`width * height`); larger frames are refused before anything
+/// is allocated. 2^25 is 8192 x 4096.
+pub const MAX_PIXELS: u64 = 1 << 25;
+
+/// Why an asset cannot be loaded into a [`Renderer`], or a frame cannot be drawn.
+#[derive(Debug, thiserror::Error)]
+pub enum RendererError {
+    /// The file could not be read or decoded as an asset (container, JSON, EXR, weights,
+    /// limits, or an extension version/architecture this reader does not support).
+    #[error(transparent)]
+    Format(#[from] dnr_format::Error),
+    /// The core glTF scene could not be turned into triangles.
+    #[error("scene: {0}")]
+    Scene(#[from] SceneError),
+    /// A neural texture is malformed.
+    #[error("neural texture {index}: {reason}")]
+    Texture {
+        /// Index in the extension's `neuralTextures`.
+        index: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A renderer's network cannot be built.
+    #[error("renderer {index}: {source}")]
+    Network {
+        /// Index in the extension's `renderers`.
+        index: usize,
+        /// What is wrong.
+        source: NetworkError,
+    },
+    /// A material's extension object names a missing texture or renderer, or pairs a
+    /// texture and a renderer whose channel counts differ.
+    #[error("material {index}: {reason}")]
+    Material {
+        /// Index in the glTF `materials`.
+        index: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The requested frame has more than [`MAX_PIXELS`] pixels (or a side beyond the
+    /// rasteriser's limit).
+    #[error("frame {width}x{height} is too large (at most {MAX_PIXELS} pixels)")]
+    FrameTooLarge {
+        /// Requested width.
+        width: u64,
+        /// Requested height.
+        height: u64,
+    },
+    /// A G-buffer handed to [`Renderer::shade`] is inconsistent.
+    #[error("G-buffer: {0}")]
+    GBuffer(String),
+    /// A network rejected its input while drawing (an internal inconsistency).
+    #[error("renderer {index} failed: {source}")]
+    Run {
+        /// Index in the extension's `renderers`.
+        index: usize,
+        /// The layer error.
+        source: NnError,
+    },
+}
+
+/// A neural texture ready to sample.
+#[derive(Clone, Debug)]
+struct NeuralTexture {
+    pyramid: Pyramid,
+    /// `(firstChannel, degree)` of the view dependence, if any.
+    sh: Option<(usize, u32)>,
+}
+
+/// One renderer of the asset.
+#[derive(Clone, Debug)]
+struct RendererSlot {
+    net: Net,
+    input_channels: usize,
+    output_channels: usize,
+}
+
+/// What draws a scene primitive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PrimOwner {
+    /// A material without the extension (or no material): not drawn by the neural path.
+    Core,
+    /// A material with the extension.
+    Neural {
+        /// Neural texture index.
+        texture: usize,
+        /// Renderer index.
+        renderer: usize,
+    },
+}
+
+/// A loaded asset, ready to draw frames. Cheap to share between threads (`Sync`); each
+/// call allocates its own buffers.
+#[derive(Clone, Debug)]
+pub struct Renderer {
+    scene: Scene,
+    textures: Vec<NeuralTexture>,
+    renderers: Vec<RendererSlot>,
+    /// Per `scene.primitives` entry.
+    owners: Vec<PrimOwner>,
+}
+
+impl Renderer {
+    /// Reads a `.glb` or `.gltf` file (external buffers resolved beside it) and prepares it.
+    ///
+    /// ```no_run
+    /// let renderer = dnr_runtime::renderer::Renderer::from_path("statue.glb")?;
+    /// # Ok::<(), dnr_runtime::renderer::RendererError>(())
+    /// ```
+    pub fn from_path(path: impl AsRef<Path>) -> Result<Self, RendererError> {
+        let asset = dnr_format::read_asset(path.as_ref())?;
+        Self::from_asset(&asset)
+    }
+
+    /// Reads a GLB, or a `.gltf` whose buffers are all `data:` URIs, from memory.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, RendererError> {
+        let asset = dnr_format::read_asset_from_slice(bytes)?;
+        Self::from_asset(&asset)
+    }
+
+    /// Prepares a decoded asset: the scene from its glTF, a pyramid per neural texture, a
+    /// network per renderer. An asset without the extension gives a renderer that draws
+    /// nothing (every pixel is core or background).
+    pub fn from_asset(asset: &Asset) -> Result<Self, RendererError> {
+        let glb = asset.container.to_glb()?;
+        let scene = from_gltf_slice(&glb)?;
+        Self::from_scene(scene, asset)
+    }
+
+    /// Like [`Renderer::from_asset`] with a scene the caller built (its primitives'
+    /// `material` fields index the asset's glTF materials).
+    pub fn from_scene(scene: Scene, asset: &Asset) -> Result<Self, RendererError> {
+        let textures = asset
+            .textures
+            .iter()
+            .enumerate()
+            .map(|(index, t)| {
+                neural_texture(t).map_err(|reason| RendererError::Texture { index, reason })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let renderers = asset
+            .renderers
+            .iter()
+            .enumerate()
+            .map(|(index, r)| {
+                let net = Net::from_decoded(r).map_err(|source| RendererError::Network { index, source })?;
+                Ok(RendererSlot {
+                    net,
+                    input_channels: r.spec.input_channels as usize,
+                    output_channels: r.spec.output_channels as usize,
+                })
+            })
+            .collect::<Result<Vec<_>, RendererError>>()?;
+        let mut bindings = Vec::with_capacity(asset.materials.len());
+        for (index, m) in asset.materials.iter().enumerate() {
+            let Some(m) = m else {
+                bindings.push(PrimOwner::Core);
+                continue;
+            };
+            let bad = |reason: String| RendererError::Material { index, reason };
+            let (ti, ri) = (m.neural_texture as usize, m.renderer as usize);
+            let t = textures.get(ti).ok_or_else(|| bad(format!("neural texture {ti} does not exist")))?;
+            let r = renderers.get(ri).ok_or_else(|| bad(format!("renderer {ri} does not exist")))?;
+            if t.pyramid.channels != r.input_channels {
+                return Err(bad(format!(
+                    "neural texture {ti} has {} channels, renderer {ri} takes {}",
+                    t.pyramid.channels, r.input_channels
+                )));
+            }
+            bindings.push(PrimOwner::Neural { texture: ti, renderer: ri });
+        }
+        let owners = scene
+            .primitives
+            .iter()
+            .map(|p| {
+                p.material
+                    .and_then(|m| bindings.get(m as usize).copied())
+                    .unwrap_or(PrimOwner::Core)
+            })
+            .collect();
+        Ok(Renderer { scene, textures, renderers, owners })
+    }
+
+    /// The triangles this renderer draws. A viewer with its own rasteriser writes indices
+    /// into `scene().primitives` as the G-buffer's `prim` ids.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// Number of renderers (networks) of the asset.
+    pub fn renderer_count(&self) -> usize {
+        self.renderers.len()
+    }
+
+    /// Architecture name (`none`, `mlp`, `unet`) of renderer `index`.
+    pub fn architecture(&self, index: usize) -> Option<&'static str> {
+        self.renderers.get(index).map(|r| r.net.architecture())
+    }
+
+    /// Number of neural textures of the asset.
+    pub fn neural_texture_count(&self) -> usize {
+        self.textures.len()
+    }
+
+    /// Draws the scene as `camera` sees it into a `width x height` frame.
+    ///
+    /// When `width x height` differs from the camera's own size, the intrinsics are scaled
+    /// to the new size (the same view at another resolution); a camera with a zero size
+    /// keeps its intrinsics as they are.
+    ///
+    /// ```
+    /// use dnr_format::model::{Architecture, DType, Renderer as RendererSpec};
+    /// use dnr_format::{AssetBuilder, LevelCompression, MaterialDesc, NeuralTextureDesc, Node,
+    ///                  Primitive, RendererDesc, TextureLevel, WrapMode};
+    /// use dnr_runtime::{camera::Camera, renderer::Renderer};
+    ///
+    /// // A 2 x 2 quad at z = 0 whose 1 x 1 texture is orange, drawn by a `none` renderer.
+    /// let mut b = AssetBuilder::new();
+    /// let quad = Primitive {
+    ///     positions: vec![[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]],
+    ///     normals: None,
+    ///     tex_coords: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+    ///     indices: vec![0, 1, 2, 0, 2, 3],
+    ///     material: Some(0),
+    /// };
+    /// let mesh = b.add_mesh(None, vec![quad]);
+    /// b.add_node(Node { mesh: Some(mesh), ..Node::default() });
+    /// b.add_neural_texture(NeuralTextureDesc {
+    ///     levels: vec![TextureLevel { width: 1, height: 1, channels: 3, data: vec![1.0, 0.5, 0.0] }],
+    ///     wrap_s: WrapMode::Repeat,
+    ///     wrap_t: WrapMode::Repeat,
+    ///     view_dependence: None,
+    ///     compression: LevelCompression::None,
+    /// });
+    /// b.add_renderer(RendererDesc {
+    ///     renderer: RendererSpec::new(Architecture::None, 3, 3),
+    ///     tensors: Default::default(),
+    ///     dtype: DType::F16,
+    /// });
+    /// b.add_material(MaterialDesc { name: None, neural_texture: 0, renderer: 0 });
+    /// let asset = b.build()?;
+    ///
+    /// let renderer = Renderer::from_asset(&asset)?;
+    /// let camera = Camera::look_at([0.0, 0.0, 3.0].into(), [0.0; 3].into(), 40.0, 64, 48);
+    /// let image = renderer.render(&camera, 64, 48)?;
+    /// assert_eq!(image.pixel(32, 24), Some([1.0, 0.5, 0.0, 1.0])); // the quad
+    /// assert_eq!(image.pixel(0, 0), Some([0.0; 4])); // background
+    /// let png_bytes = image.to_rgba8(); // 64 * 48 * 4 bytes for an 8-bit RGBA PNG
+    /// assert_eq!(&png_bytes[(24 * 64 + 32) * 4..][..4], &[255, 128, 0, 255]);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn render(&self, camera: &Camera, width: u32, height: u32) -> Result<RgbaImage, RendererError> {
+        check_frame(u64::from(width), u64::from(height))?;
+        let cam = resized_camera(camera, width, height);
+        let gbuf = rasterize(&self.scene, &cam);
+        self.shade(&gbuf)
+    }
+
+    /// Shades a G-buffer: the neural layer of a frame whose visibility the caller computed.
+    ///
+    /// `gbuf.prim` must index [`Renderer::scene`]`().primitives` at every covered pixel
+    /// (`coverage != 0`); `uv` is the material's `TEXCOORD_<texCoord>` (non-finite where the
+    /// primitive has none: the feature is then 0); `view_dir` is the unit eye-to-surface
+    /// direction in the primitive's local space (only read where the neural texture has
+    /// view dependence; non-finite is treated as `(0, 0, 0)`). Coverage is binary: any
+    /// non-zero value counts as covered.
+    ///
+    /// ```
+    /// use dnr_format::model::{Architecture, DType, Renderer as RendererSpec};
+    /// use dnr_format::{AssetBuilder, LevelCompression, MaterialDesc, NeuralTextureDesc, Node,
+    ///                  Primitive, RendererDesc, TextureLevel, WrapMode};
+    /// use dnr_runtime::{gbuffer::GBuffer, renderer::Renderer};
+    ///
+    /// // One triangle with a 2 x 1 texture (red | blue), clamped at the edges.
+    /// let mut b = AssetBuilder::new();
+    /// let tri = Primitive {
+    ///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+    ///     normals: None,
+    ///     tex_coords: vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
+    ///     indices: vec![0, 1, 2],
+    ///     material: Some(0),
+    /// };
+    /// let mesh = b.add_mesh(None, vec![tri]);
+    /// b.add_node(Node { mesh: Some(mesh), ..Node::default() });
+    /// b.add_neural_texture(NeuralTextureDesc {
+    ///     levels: vec![TextureLevel { width: 2, height: 1, channels: 3,
+    ///                                 data: vec![1.0, 0.0, 0.0, 0.0, 0.0, 1.0] }],
+    ///     wrap_s: WrapMode::ClampToEdge,
+    ///     wrap_t: WrapMode::ClampToEdge,
+    ///     view_dependence: None,
+    ///     compression: LevelCompression::None,
+    /// });
+    /// b.add_renderer(RendererDesc {
+    ///     renderer: RendererSpec::new(Architecture::None, 3, 3),
+    ///     tensors: Default::default(),
+    ///     dtype: DType::F16,
+    /// });
+    /// b.add_material(MaterialDesc { name: None, neural_texture: 0, renderer: 0 });
+    /// let renderer = Renderer::from_asset(&b.build()?)?;
+    ///
+    /// // A 3 x 1 G-buffer from "another rasteriser": pixel 0 sees u = 0.25 (the red texel's
+    /// // centre), pixel 1 sees u = 0.5 (half way), pixel 2 is uncovered.
+    /// let mut g = GBuffer::new(3, 1);
+    /// for (i, u) in [(0, 0.25), (1, 0.5)] {
+    ///     g.coverage[i] = 1.0;
+    ///     g.prim[i] = 0; // index into renderer.scene().primitives
+    ///     g.uv[i] = [u, 0.5];
+    /// }
+    /// let image = renderer.shade(&g)?;
+    /// assert_eq!(image.pixel(0, 0), Some([1.0, 0.0, 0.0, 1.0]));
+    /// assert_eq!(image.pixel(1, 0), Some([0.5, 0.0, 0.5, 1.0]));
+    /// assert_eq!(image.pixel(2, 0), Some([0.0; 4]));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn shade(&self, gbuf: &GBuffer) -> Result<RgbaImage, RendererError> {
+        if !gbuf.is_consistent() {
+            return Err(RendererError::GBuffer(format!(
+                "the per-pixel vectors do not all hold width * height = {} x {} entries",
+                gbuf.width, gbuf.height
+            )));
+        }
+        check_frame(gbuf.width as u64, gbuf.height as u64)?;
+        shade::shade(self, gbuf)
+    }
+}
+
+/// Refuses frames beyond [`MAX_PIXELS`] or the rasteriser's side limit.
+fn check_frame(width: u64, height: u64) -> Result<(), RendererError> {
+    let side = raster::MAX_IMAGE_SIDE as u64;
+    if width.saturating_mul(height) > MAX_PIXELS || width > side || height > side {
+        return Err(RendererError::FrameTooLarge { width, height });
+    }
+    Ok(())
+}
+
+/// `camera` at `width x height`, intrinsics scaled from its own size.
+fn resized_camera(camera: &Camera, width: u32, height: u32) -> Camera {
+    let mut c = *camera;
+    if (c.width, c.height) != (width, height) && c.width > 0 && c.height > 0 {
+        let sx = width as f32 / c.width as f32;
+        let sy = height as f32 / c.height as f32;
+        c.fx *= sx;
+        c.cx *= sx;
+        c.fy *= sy;
+        c.cy *= sy;
+    }
+    c.width = width;
+    c.height = height;
+    c
+}
+
+/// The sampling pyramid and view dependence of a decoded texture.
+fn neural_texture(t: &DecodedTexture) -> Result<NeuralTexture, String> {
+    let channels = t.channels as usize;
+    let mut levels = Vec::with_capacity(t.levels.len());
+    for (i, l) in t.levels.iter().enumerate() {
+        if l.channels != t.channels {
+            return Err(format!("level {i} has {} channels, the texture {}", l.channels, t.channels));
+        }
+        levels.push(Level { width: l.width as usize, height: l.height as usize, data: l.data.clone() });
+    }
+    let pyramid = Pyramid::new(channels, levels, wrap(t.wrap_s), wrap(t.wrap_t)).map_err(|e: TextureError| e.to_string())?;
+    let sh = match &t.view_dependence {
+        None => None,
+        Some(vd) => {
+            if vd.basis != dnr_format::model::BASIS_SPHERICAL_HARMONICS || vd.degree > sh::MAX_DEGREE {
+                return Err(format!("view dependence `{}` of degree {} is not supported", vd.basis, vd.degree));
+            }
+            let first = vd.first_channel as usize;
+            if first.saturating_add(sh::coeff_count(vd.degree)) > channels {
+                return Err(format!(
+                    "view dependence channels {first}..{} exceed the {channels} channels",
+                    first.saturating_add(sh::coeff_count(vd.degree))
+                ));
+            }
+            Some((first, vd.degree))
+        }
+    };
+    Ok(NeuralTexture { pyramid, sh })
+}
+
+fn wrap(w: WrapMode) -> Wrap {
+    match w {
+        WrapMode::Repeat => Wrap::Repeat,
+        WrapMode::ClampToEdge => Wrap::ClampToEdge,
+        WrapMode::MirroredRepeat => Wrap::MirroredRepeat,
+    }
+}
