@@ -41,9 +41,6 @@ type V3 = [f64; 3];
 fn add(a: V3, b: V3) -> V3 {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
-fn sub(a: V3, b: V3) -> V3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
 fn scale(a: V3, s: f64) -> V3 {
     [a[0] * s, a[1] * s, a[2] * s]
 }
@@ -51,7 +48,11 @@ fn dot(a: V3, b: V3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 fn cross(a: V3, b: V3) -> V3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 fn normalize(a: V3) -> V3 {
     scale(a, 1.0 / dot(a, a).sqrt())
@@ -97,10 +98,20 @@ fn albedo(u: f64, v: f64) -> V3 {
     if (0.15..0.85).contains(&s) && (0.2..0.8).contains(&t) {
         let col = ((s - 0.15) / 0.1).floor() as usize;
         let row = ((t - 0.2) / 0.12).floor() as usize;
-        let digit = if col < 3 { Some((index / 10, col)) } else if col > 3 { Some((index % 10, col - 4)) } else { None };
+        let digit = if col < 3 {
+            Some((index / 10, col))
+        } else if col > 3 {
+            Some((index % 10, col - 4))
+        } else {
+            None
+        };
         if let Some((d, x)) = digit {
             if FONT[d][row.min(4)] >> (2 - x) & 1 == 1 {
-                c = if dark_cell { [0.92, 0.92, 0.88] } else { [0.03, 0.03, 0.04] };
+                c = if dark_cell {
+                    [0.92, 0.92, 0.88]
+                } else {
+                    [0.03, 0.03, 0.04]
+                };
             }
         }
     }
@@ -125,7 +136,11 @@ fn sphere_uv(p: V3) -> (f64, f64) {
 /// Point on the unit sphere for uv (inverse of [`sphere_uv`]).
 fn sphere_point(u: f64, v: f64) -> V3 {
     let (theta, phi) = (v * PI, u * 2.0 * PI);
-    [theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin()]
+    [
+        theta.sin() * phi.cos(),
+        theta.cos(),
+        -theta.sin() * phi.sin(),
+    ]
 }
 
 /// Linear radiance seen along the ray, or None on a miss.
@@ -149,7 +164,11 @@ fn shade(origin: V3, dir: V3) -> Option<V3> {
     let ndl = dot(n, l).max(0.0);
     let view = scale(dir, -1.0);
     let h = normalize(add(l, view));
-    let spec = if ndl > 0.0 { SPECULAR * dot(n, h).max(0.0).powf(SHININESS) } else { 0.0 };
+    let spec = if ndl > 0.0 {
+        SPECULAR * dot(n, h).max(0.0).powf(SHININESS)
+    } else {
+        0.0
+    };
     let k = AMBIENT + (1.0 - AMBIENT) * ndl;
     Some([a[0] * k + spec, a[1] * k + spec, a[2] * k + spec])
 }
@@ -226,7 +245,11 @@ fn write_png(path: &Path, rgba: &[u8]) {
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     use image::ImageEncoder;
     let file = std::fs::File::create(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let enc = PngEncoder::new_with_quality(std::io::BufWriter::new(file), CompressionType::Best, FilterType::Adaptive);
+    let enc = PngEncoder::new_with_quality(
+        std::io::BufWriter::new(file),
+        CompressionType::Best,
+        FilterType::Adaptive,
+    );
     enc.write_image(rgba, SIZE, SIZE, image::ExtendedColorType::Rgba8)
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
 }
@@ -275,27 +298,53 @@ fn write_transforms(dir: &Path, split: &str, eyes: &[V3]) {
 #[allow(clippy::type_complexity)]
 fn proxy_sphere() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<u16>) {
     let (mut pos, mut nrm, mut uv) = (Vec::new(), Vec::new(), Vec::new());
-    let cols = MESH_SEGMENTS + 1;
-    for j in 0..=MESH_RINGS {
-        for i in 0..=MESH_SEGMENTS {
-            let v = j as f64 / MESH_RINGS as f64;
-            // Pole vertices take the u of the middle of their triangle.
-            let u = if j == 0 || j == MESH_RINGS { (i as f64 + 0.5) / MESH_SEGMENTS as f64 } else { i as f64 / MESH_SEGMENTS as f64 };
-            let p = sphere_point(u, v);
-            let p = if j == 0 { [0.0, 1.0, 0.0] } else if j == MESH_RINGS { [0.0, -1.0, 0.0] } else { p };
-            pos.push(p.map(|x| x as f32));
-            nrm.push(p.map(|x| x as f32));
-            uv.push([u as f32, v as f32]);
+    let (s, r) = (MESH_SEGMENTS, MESH_RINGS);
+    let mut vertex = |u: f64, v: f64| {
+        let p = sphere_point(u, v);
+        pos.push(p.map(|x| x as f32));
+        nrm.push(p.map(|x| x as f32));
+        uv.push([u as f32, v as f32]);
+    };
+    // Pole vertices, one per segment, take the u of the middle of their triangle; ring
+    // vertices repeat u = 0 as u = 1 at the seam.
+    for i in 0..s {
+        vertex((i as f64 + 0.5) / s as f64, 0.0);
+    }
+    for j in 1..r {
+        for i in 0..=s {
+            vertex(i as f64 / s as f64, j as f64 / r as f64);
         }
     }
-    let at = |i: usize, j: usize| (j * cols + i) as u16;
+    for i in 0..s {
+        vertex((i as f64 + 0.5) / s as f64, 1.0);
+    }
+    let at = |i: usize, j: usize| -> u16 {
+        let k = if j == 0 {
+            i
+        } else if j == r {
+            s + (r - 1) * (s + 1) + i
+        } else {
+            s + (j - 1) * (s + 1) + i
+        };
+        k as u16
+    };
     let mut idx = Vec::new();
     let mut tri = |a: u16, b: u16, c: u16| {
         // Counter-clockwise seen from outside (glTF front faces).
         let (pa, pb, pc) = (pos[a as usize], pos[b as usize], pos[c as usize]);
-        let d = |p: [f32; 3], q: [f32; 3]| [(q[0] - p[0]) as f64, (q[1] - p[1]) as f64, (q[2] - p[2]) as f64];
+        let d = |p: [f32; 3], q: [f32; 3]| {
+            [
+                (q[0] - p[0]) as f64,
+                (q[1] - p[1]) as f64,
+                (q[2] - p[2]) as f64,
+            ]
+        };
         let nrm = cross(d(pa, pb), d(pa, pc));
-        let centre = [(pa[0] + pb[0] + pc[0]) as f64, (pa[1] + pb[1] + pc[1]) as f64, (pa[2] + pb[2] + pc[2]) as f64];
+        let centre = [
+            (pa[0] + pb[0] + pc[0]) as f64,
+            (pa[1] + pb[1] + pc[1]) as f64,
+            (pa[2] + pb[2] + pc[2]) as f64,
+        ];
         if dot(nrm, centre) >= 0.0 {
             idx.extend_from_slice(&[a, b, c]);
         } else {
@@ -330,15 +379,28 @@ fn write_glb(path: &Path) {
         views.push(serde_json::json!({ "buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len(), "target": target }));
         bin.extend(bytes);
     };
-    push(pos.iter().flatten().flat_map(|x| x.to_le_bytes()).collect(), 34962);
-    push(nrm.iter().flatten().flat_map(|x| x.to_le_bytes()).collect(), 34962);
-    push(uv.iter().flatten().flat_map(|x| x.to_le_bytes()).collect(), 34962);
+    push(
+        pos.iter().flatten().flat_map(|x| x.to_le_bytes()).collect(),
+        34962,
+    );
+    push(
+        nrm.iter().flatten().flat_map(|x| x.to_le_bytes()).collect(),
+        34962,
+    );
+    push(
+        uv.iter().flatten().flat_map(|x| x.to_le_bytes()).collect(),
+        34962,
+    );
     push(idx.iter().flat_map(|x| x.to_le_bytes()).collect(), 34963);
     while bin.len() % 4 != 0 {
         bin.push(0);
     }
-    let min = (0..3).map(|k| pos.iter().map(|p| p[k]).fold(f32::INFINITY, f32::min)).collect::<Vec<_>>();
-    let max = (0..3).map(|k| pos.iter().map(|p| p[k]).fold(f32::NEG_INFINITY, f32::max)).collect::<Vec<_>>();
+    let min = (0..3)
+        .map(|k| pos.iter().map(|p| p[k]).fold(f32::INFINITY, f32::min))
+        .collect::<Vec<_>>();
+    let max = (0..3)
+        .map(|k| pos.iter().map(|p| p[k]).fold(f32::NEG_INFINITY, f32::max))
+        .collect::<Vec<_>>();
     let json = serde_json::json!({
         "asset": { "version": "2.0", "generator": "dnr-bake example make_capture" },
         "scene": 0,
@@ -422,12 +484,20 @@ runtime's rasteriser:
 }
 
 fn main() {
-    let out: PathBuf = std::env::args_os().nth(1).map(PathBuf::from).unwrap_or_else(|| PathBuf::from("samples/capture"));
+    let out: PathBuf = std::env::args_os()
+        .nth(1)
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("samples/capture"));
     std::fs::create_dir_all(&out).unwrap_or_else(|e| panic!("{}: {e}", out.display()));
     let (train, test) = views();
     write_transforms(&out, "train", &train);
     write_transforms(&out, "test", &test);
     write_glb(&out.join("mesh.glb"));
     std::fs::write(out.join("README.md"), readme()).unwrap();
-    eprintln!("wrote {} train + {} test views and mesh.glb to {}", train.len(), test.len(), out.display());
+    eprintln!(
+        "wrote {} train + {} test views and mesh.glb to {}",
+        train.len(),
+        test.len(),
+        out.display()
+    );
 }

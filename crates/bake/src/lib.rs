@@ -4,6 +4,6 @@
 //! Uses the runtime's forward kernels so what it optimises is what the runtime draws.
 
 pub mod capture;
-pub mod bake;
-pub mod export;
-pub mod train;
+pub mod eval;
+pub mod kernels;
+pub mod bench;

@@ -12,7 +12,9 @@ fn duck_tiny_loads_with_split_intrinsics_alpha_and_mesh() {
     let cap = Capture::load(&dir, &LoadOptions::default()).unwrap();
     assert_eq!(cap.train.len(), 24);
     assert_eq!(cap.test.len(), 8);
-    assert!(matches!(&cap.split, SplitSource::Files { test: Some(t), .. } if t.ends_with("transforms_test.json")));
+    assert!(
+        matches!(&cap.split, SplitSource::Files { test: Some(t), .. } if t.ends_with("transforms_test.json"))
+    );
     assert!(cap.warnings.is_empty(), "{:?}", cap.warnings);
 
     // Intrinsics from camera_angle_x and the 128x128 image size.
@@ -30,7 +32,11 @@ fn duck_tiny_loads_with_split_intrinsics_alpha_and_mesh() {
         assert!((eye.length() - 3.6).abs() < 1e-3, "{}: eye {eye}", fr.name);
         let fwd = -fr.camera.cam_to_world.z_axis.truncate();
         assert!(fwd.dot(-eye.normalize()) > 0.999);
-        assert!(fr.rgb.iter().chain(&fr.alpha).all(|v| (0.0..=1.0).contains(v)));
+        assert!(fr
+            .rgb
+            .iter()
+            .chain(&fr.alpha)
+            .all(|v| (0.0..=1.0).contains(v)));
         // Alpha is a real mask: background and object both present.
         assert!(fr.alpha.iter().any(|&a| a == 0.0) && fr.alpha.iter().any(|&a| a == 1.0));
     }
@@ -39,7 +45,10 @@ fn duck_tiny_loads_with_split_intrinsics_alpha_and_mesh() {
 
     // Pose of train/r_000 as written in transforms_train.json (row-major).
     let eye0 = cap.train[0].camera.eye();
-    assert!((eye0 - Vec3::new(-0.5473597510502608, 3.0615226818527304, -1.8131398653803472)).length() < 1e-5);
+    assert!(
+        (eye0 - Vec3::new(-0.5473597510502608, 3.0615226818527304, -1.8131398653803472)).length()
+            < 1e-5
+    );
     assert!((cap.train[0].camera.cam_to_world.x_axis.z - 0.2890030303212531).abs() < 1e-6);
 
     // Pixels equal an independent decode / 255 (sRGB values kept as they are).
@@ -53,17 +62,34 @@ fn duck_tiny_loads_with_split_intrinsics_alpha_and_mesh() {
 
     // Mesh from mesh_path with UVs.
     assert!(cap.mesh_path.ends_with("mesh.glb"));
-    let tris: usize = cap.mesh.primitives.iter().map(|p| p.indices.len() / 3).sum();
+    let tris: usize = cap
+        .mesh
+        .primitives
+        .iter()
+        .map(|p| p.indices.len() / 3)
+        .sum();
     assert_eq!(tris, 4212);
-    assert!(cap.mesh.primitives.iter().all(|p| p.uvs.len() == p.positions.len()));
+    assert!(cap
+        .mesh
+        .primitives
+        .iter()
+        .all(|p| p.uvs.len() == p.positions.len()));
 }
 
 #[test]
 fn mesh_override_wins_over_mesh_path() {
     let dir = shared_captures().join("duck-tiny");
-    let opts = LoadOptions { mesh: Some(dir.join("mesh_coarse.glb")), ..Default::default() };
+    let opts = LoadOptions {
+        mesh: Some(dir.join("mesh_coarse.glb")),
+        ..Default::default()
+    };
     let cap = Capture::load(&dir, &opts).unwrap();
     assert!(cap.mesh_path.ends_with("mesh_coarse.glb"));
-    let tris: usize = cap.mesh.primitives.iter().map(|p| p.indices.len() / 3).sum();
+    let tris: usize = cap
+        .mesh
+        .primitives
+        .iter()
+        .map(|p| p.indices.len() / 3)
+        .sum();
     assert!(tris > 0 && tris < 1000, "{tris}");
 }

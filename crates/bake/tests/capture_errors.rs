@@ -29,14 +29,21 @@ fn missing_image_names_transforms_file_field_and_image() {
     std::fs::remove_file(dir.path().join("images/f_2.png")).unwrap();
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::ImageNotFound { .. }), "{msg}");
-    assert!(msg.contains("transforms.json") && msg.contains("frames[2].file_path"), "{msg}");
+    assert!(
+        msg.contains("transforms.json") && msg.contains("frames[2].file_path"),
+        "{msg}"
+    );
     assert!(msg.contains("f_2.png"), "{msg}");
 }
 
 #[test]
 fn unreadable_image_names_the_image() {
     let dir = simple_capture(4, 8);
-    std::fs::write(dir.path().join("images/f_1.png"), b"\x89PNG\r\n\x1a\nthis is not a png").unwrap();
+    std::fs::write(
+        dir.path().join("images/f_1.png"),
+        b"\x89PNG\r\n\x1a\nthis is not a png",
+    )
+    .unwrap();
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::ImageDecode { .. }), "{msg}");
     assert!(msg.contains("f_1.png"), "{msg}");
@@ -45,7 +52,11 @@ fn unreadable_image_names_the_image() {
 #[test]
 fn malformed_json_gives_line_and_column() {
     let dir = simple_capture(2, 8);
-    std::fs::write(dir.path().join("transforms.json"), "{\n  \"camera_angle_x\": 0.7,\n  \"frames\": [,]\n}\n").unwrap();
+    std::fs::write(
+        dir.path().join("transforms.json"),
+        "{\n  \"camera_angle_x\": 0.7,\n  \"frames\": [,]\n}\n",
+    )
+    .unwrap();
     let (e, msg) = load_err(dir.path());
     match e {
         CaptureError::Json { line, column, .. } => assert_eq!((line, column), (3, 14), "{msg}"),
@@ -60,7 +71,10 @@ fn mesh_without_uvs_is_refused() {
     std::fs::write(dir.path().join("mesh.obj"), quad_obj(false)).unwrap();
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::MeshNoUvs { .. }), "{msg}");
-    assert!(msg.contains("mesh.obj") && msg.contains("UVs are required for now"), "{msg}");
+    assert!(
+        msg.contains("mesh.obj") && msg.contains("UVs are required for now"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -71,18 +85,25 @@ fn nan_in_matrix_names_frame_and_entry() {
     let text = std::fs::read_to_string(&path).unwrap();
     let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
     v["frames"][1]["transform_matrix"][0][3] = json!(12345.5);
-    let text = serde_json::to_string_pretty(&v).unwrap().replace("12345.5", "NaN");
+    let text = serde_json::to_string_pretty(&v)
+        .unwrap()
+        .replace("12345.5", "NaN");
     std::fs::write(&path, text).unwrap();
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::Field { .. }), "{msg}");
-    assert!(msg.contains("transforms.json") && msg.contains("frames[1].transform_matrix[0][3]"), "{msg}");
+    assert!(
+        msg.contains("transforms.json") && msg.contains("frames[1].transform_matrix[0][3]"),
+        "{msg}"
+    );
     assert!(msg.contains("finite"), "{msg}");
 }
 
 #[test]
 fn null_in_matrix_is_not_finite_either() {
     let dir = simple_capture(3, 8);
-    edit_json(&dir.path().join("transforms.json"), |v| v["frames"][2]["transform_matrix"][1][1] = json!(null));
+    edit_json(&dir.path().join("transforms.json"), |v| {
+        v["frames"][2]["transform_matrix"][1][1] = json!(null)
+    });
     let (_, msg) = load_err(dir.path());
     assert!(msg.contains("frames[2].transform_matrix[1][1]"), "{msg}");
 }
@@ -91,11 +112,17 @@ fn null_in_matrix_is_not_finite_either() {
 fn singular_matrix_names_the_frame() {
     let dir = simple_capture(3, 8);
     edit_json(&dir.path().join("transforms.json"), |v| {
-        v["frames"][2]["transform_matrix"] = json!([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 3], [0, 0, 0, 1]]);
+        v["frames"][2]["transform_matrix"] =
+            json!([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 3], [0, 0, 0, 1]]);
     });
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::Field { .. }), "{msg}");
-    assert!(msg.contains("transforms.json") && msg.contains("frames[2].transform_matrix") && msg.contains("singular"), "{msg}");
+    assert!(
+        msg.contains("transforms.json")
+            && msg.contains("frames[2].transform_matrix")
+            && msg.contains("singular"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -104,24 +131,51 @@ fn image_size_disagreeing_with_intrinsics() {
     edit_json(&dir.path().join("transforms.json"), |v| {
         let o = v.as_object_mut().unwrap();
         o.remove("camera_angle_x");
-        for (k, x) in [("fl_x", 10.0), ("fl_y", 10.0), ("cx", 4.0), ("cy", 4.0), ("w", 8.0), ("h", 8.0)] {
+        for (k, x) in [
+            ("fl_x", 10.0),
+            ("fl_y", 10.0),
+            ("cx", 4.0),
+            ("cy", 4.0),
+            ("w", 8.0),
+            ("h", 8.0),
+        ] {
             o.insert(k.into(), json!(x));
         }
     });
     // One image of the wrong size.
     write_png_rgba(&dir.path().join("images/f_1.png"), 8, 6, pattern(1));
     let (e, msg) = load_err(dir.path());
-    assert!(matches!(e, CaptureError::ImageSize { width: 8, height: 6, expected_width: 8, expected_height: 8, .. }), "{msg}");
-    assert!(msg.contains("f_1.png") && msg.contains("transforms.json") && msg.contains("frames[1]"), "{msg}");
+    assert!(
+        matches!(
+            e,
+            CaptureError::ImageSize {
+                width: 8,
+                height: 6,
+                expected_width: 8,
+                expected_height: 8,
+                ..
+            }
+        ),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("f_1.png") && msg.contains("transforms.json") && msg.contains("frames[1]"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn no_frames() {
     let dir = simple_capture(2, 8);
-    edit_json(&dir.path().join("transforms.json"), |v| v["frames"] = json!([]));
+    edit_json(&dir.path().join("transforms.json"), |v| {
+        v["frames"] = json!([])
+    });
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::NoFrames { .. }), "{msg}");
-    assert!(msg.contains("transforms.json") && msg.contains("frames"), "{msg}");
+    assert!(
+        msg.contains("transforms.json") && msg.contains("frames"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -129,7 +183,10 @@ fn one_frame_leaves_nothing_to_train_on_with_llffhold() {
     let dir = simple_capture(1, 8);
     let (e, msg) = load_err(dir.path());
     assert!(matches!(e, CaptureError::NoFrames { .. }), "{msg}");
-    assert!(msg.contains("transforms.json") && msg.contains("llffhold"), "{msg}");
+    assert!(
+        msg.contains("transforms.json") && msg.contains("llffhold"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -154,7 +211,10 @@ fn no_intrinsics_and_bad_fov() {
         v.as_object_mut().unwrap().remove("camera_angle_x");
     });
     let (_, msg) = load_err(dir.path());
-    assert!(msg.contains("transforms.json") && msg.contains("no intrinsics"), "{msg}");
+    assert!(
+        msg.contains("transforms.json") && msg.contains("no intrinsics"),
+        "{msg}"
+    );
     edit_json(&path, |v| v["camera_angle_x"] = json!(4.0));
     let (_, msg) = load_err(dir.path());
     assert!(msg.contains("transforms.json: camera_angle_x"), "{msg}");
@@ -169,48 +229,116 @@ fn mesh_problems_name_the_mesh() {
     // Empty mesh.
     std::fs::write(dir.path().join("mesh.obj"), "# nothing\nv 0 0 0\n").unwrap();
     let (e, msg) = load_err(dir.path());
-    assert!(matches!(e, CaptureError::MeshEmpty { .. }) && msg.contains("mesh.obj"), "{msg}");
+    assert!(
+        matches!(e, CaptureError::MeshEmpty { .. }) && msg.contains("mesh.obj"),
+        "{msg}"
+    );
     // No mesh at all.
     std::fs::remove_file(dir.path().join("mesh.obj")).unwrap();
     let (e, _) = load_err(dir.path());
     assert!(matches!(e, CaptureError::NoMesh { .. }));
     // mesh_path naming a missing file.
-    edit_json(&dir.path().join("transforms.json"), |v| v["mesh_path"] = json!("proxy/missing.glb"));
+    edit_json(&dir.path().join("transforms.json"), |v| {
+        v["mesh_path"] = json!("proxy/missing.glb")
+    });
     let (_, msg) = load_err(dir.path());
-    assert!(msg.contains("transforms.json: mesh_path") && msg.contains("missing.glb"), "{msg}");
+    assert!(
+        msg.contains("transforms.json: mesh_path") && msg.contains("missing.glb"),
+        "{msg}"
+    );
     // Unsupported extension via the override.
     let stl = dir.path().join("mesh.stl");
     std::fs::write(&stl, "solid x\nendsolid x\n").unwrap();
-    let opts = LoadOptions { mesh: Some(stl), ..Default::default() };
+    let opts = LoadOptions {
+        mesh: Some(stl),
+        ..Default::default()
+    };
     let (e, msg) = load_err_with(dir.path(), &opts);
-    assert!(matches!(e, CaptureError::MeshFormat { .. }) && msg.contains("mesh.stl"), "{msg}");
+    assert!(
+        matches!(e, CaptureError::MeshFormat { .. }) && msg.contains("mesh.stl"),
+        "{msg}"
+    );
     // Malformed glTF goes through the runtime loader and still names the file.
     let glb = dir.path().join("broken.glb");
     std::fs::write(&glb, b"glTF\x02\x00\x00\x00garbage").unwrap();
-    let opts = LoadOptions { mesh: Some(glb), ..Default::default() };
+    let opts = LoadOptions {
+        mesh: Some(glb),
+        ..Default::default()
+    };
     let (e, msg) = load_err_with(dir.path(), &opts);
-    assert!(matches!(e, CaptureError::Gltf { .. }) && msg.contains("broken.glb"), "{msg}");
+    assert!(
+        matches!(e, CaptureError::Gltf { .. }) && msg.contains("broken.glb"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn limits_are_checked_before_decoding() {
     let dir = simple_capture(5, 16);
-    let opts = |l: Limits| LoadOptions { limits: l, ..Default::default() };
-    let (e, msg) = load_err_with(dir.path(), &opts(Limits { max_frames: 4, ..Default::default() }));
-    assert!(matches!(e, CaptureError::TooManyFrames { count: 5, max: 4, .. }) && msg.contains("transforms.json"), "{msg}");
-    let (e, msg) = load_err_with(dir.path(), &opts(Limits { max_image_side: 15, ..Default::default() }));
-    assert!(matches!(e, CaptureError::TooLarge { .. }) && msg.contains("f_0.png"), "{msg}");
-    let (e, msg) = load_err_with(dir.path(), &opts(Limits { max_total_pixels: 16 * 16 * 4, ..Default::default() }));
-    assert!(matches!(e, CaptureError::TooLarge { .. }) && msg.contains("frames[4]"), "{msg}");
-    let (e, msg) = load_err_with(dir.path(), &opts(Limits { max_json_bytes: 100, ..Default::default() }));
-    assert!(matches!(e, CaptureError::TooLarge { .. }) && msg.contains("transforms.json"), "{msg}");
+    let opts = |l: Limits| LoadOptions {
+        limits: l,
+        ..Default::default()
+    };
+    let (e, msg) = load_err_with(
+        dir.path(),
+        &opts(Limits {
+            max_frames: 4,
+            ..Default::default()
+        }),
+    );
+    assert!(
+        matches!(
+            e,
+            CaptureError::TooManyFrames {
+                count: 5,
+                max: 4,
+                ..
+            }
+        ) && msg.contains("transforms.json"),
+        "{msg}"
+    );
+    let (e, msg) = load_err_with(
+        dir.path(),
+        &opts(Limits {
+            max_image_side: 15,
+            ..Default::default()
+        }),
+    );
+    assert!(
+        matches!(e, CaptureError::TooLarge { .. }) && msg.contains("f_0.png"),
+        "{msg}"
+    );
+    let (e, msg) = load_err_with(
+        dir.path(),
+        &opts(Limits {
+            max_total_pixels: 16 * 16 * 4,
+            ..Default::default()
+        }),
+    );
+    assert!(
+        matches!(e, CaptureError::TooLarge { .. }) && msg.contains("frames[4]"),
+        "{msg}"
+    );
+    let (e, msg) = load_err_with(
+        dir.path(),
+        &opts(Limits {
+            max_json_bytes: 100,
+            ..Default::default()
+        }),
+    );
+    assert!(
+        matches!(e, CaptureError::TooLarge { .. }) && msg.contains("transforms.json"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn bad_last_row_and_unsupported_camera_model() {
     let dir = simple_capture(2, 8);
     let path = dir.path().join("transforms.json");
-    edit_json(&path, |v| v["frames"][1]["transform_matrix"][3] = json!([0, 0, 1, 1]));
+    edit_json(&path, |v| {
+        v["frames"][1]["transform_matrix"][3] = json!([0, 0, 1, 1])
+    });
     let (_, msg) = load_err(dir.path());
     assert!(msg.contains("frames[1].transform_matrix[3]"), "{msg}");
     edit_json(&path, |v| {
@@ -218,5 +346,8 @@ fn bad_last_row_and_unsupported_camera_model() {
         v["camera_model"] = json!("OPENCV_FISHEYE");
     });
     let (_, msg) = load_err(dir.path());
-    assert!(msg.contains("transforms.json: camera_model") && msg.contains("OPENCV_FISHEYE"), "{msg}");
+    assert!(
+        msg.contains("transforms.json: camera_model") && msg.contains("OPENCV_FISHEYE"),
+        "{msg}"
+    );
 }

@@ -198,6 +198,10 @@ pub fn write_asset(path: impl AsRef<Path>, asset: &Asset) -> Result<()> {
 /// anything the validator reports as an error.
 pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
     let root = &container.root;
+    for i in 0..root.buffer_views.len() {
+        // Every view must lie inside its buffer, used by the extension or not.
+        container.view_bytes(i as u32)?;
+    }
     let mut materials = Vec::with_capacity(root.materials.len());
     for (i, m) in root.materials.iter().enumerate() {
         materials.push(match material_extension_value(m) {
@@ -207,6 +211,18 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             ),
             None => None,
         });
+    }
+    let uses = root_extension_value(root).is_some() || materials.iter().any(Option::is_some);
+    if uses && !root.extensions_used.iter().any(|e| e == EXTENSION_NAME) {
+        return Err(Error::invalid(format!("`{EXTENSION_NAME}` is used but not in extensionsUsed")));
+    }
+    if root.extensions_required.iter().any(|e| e == EXTENSION_NAME) {
+        return Err(Error::invalid(format!("`{EXTENSION_NAME}` is in extensionsRequired")));
+    }
+    for (i, m) in root.materials.iter().enumerate() {
+        if materials[i].is_some() && m.pbr_metallic_roughness.base_color_texture.is_none() {
+            return Err(Error::invalid(format!("material {i} has no baseColorTexture fallback")));
+        }
     }
     let Some(value) = root_extension_value(root) else {
         if materials.iter().any(Option::is_some) {

@@ -285,9 +285,14 @@ fn read_external(base: &Path, uri: &str, limits: &Limits) -> Result<Vec<u8>> {
     }
     let rel = percent_decode(uri)?;
     let path = base.join(rel);
-    let meta = fs::metadata(&path).map_err(|e| Error::io(&path, e))?;
+    // Invalid rather than Io: the asset refers to a file that is not there, and the
+    // message must name the asset (the caller adds it) as well as the missing file.
+    let unreadable = |e: std::io::Error| {
+        Error::invalid(format!("external buffer `{uri}` ({}) cannot be read: {e}", path.display()))
+    };
+    let meta = fs::metadata(&path).map_err(unreadable)?;
     Limits::check("external buffer size", meta.len(), limits.max_buffer_bytes)?;
-    fs::read(&path).map_err(|e| Error::io(&path, e))
+    fs::read(&path).map_err(unreadable)
 }
 
 fn percent_decode(s: &str) -> Result<String> {

@@ -61,12 +61,11 @@ pub enum CaptureError {
         /// The limit.
         max: usize,
     },
-    /// The image a frame names does not exist (with or without an added extension).
+    /// The image a frame names does not exist, as written or with an image extension added.
     #[error(
-        "{path}: {field}: image {image} not found{tried}",
+        "{path}: {field}: image {image} not found (also tried adding .png, .jpg, .jpeg, .exr and upper case)",
         path = .path.display(),
-        image = .image.display(),
-        tried = if *.extensionless { " (also tried .png, .jpg, .jpeg, .exr and upper case)" } else { "" }
+        image = .image.display()
     )]
     ImageNotFound {
         /// The transforms file.
@@ -75,8 +74,6 @@ pub enum CaptureError {
         field: String,
         /// The path as resolved against the capture folder.
         image: PathBuf,
-        /// Whether extensions were tried because the name had none that exists.
-        extensionless: bool,
     },
     /// An image file could not be decoded.
     #[error("{path}: cannot decode image: {message}", path = .path.display())]
@@ -176,6 +173,9 @@ pub enum CaptureError {
 
 impl CaptureError {
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        CaptureError::Io { path: path.into(), source }
+        CaptureError::Io {
+            path: path.into(),
+            source,
+        }
     }
 }

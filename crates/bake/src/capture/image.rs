@@ -67,13 +67,15 @@ pub(crate) fn probe(path: &Path) -> Result<(ImageKind, u32, u32), CaptureError> 
     let mut f = std::fs::File::open(path).map_err(|e| CaptureError::io(path, e))?;
     let n = read_up_to(&mut f, &mut magic).map_err(|e| CaptureError::io(path, e))?;
     if n == 4 && magic == EXR_MAGIC {
-        let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| decode_err(path, e))?;
+        let meta =
+            exr::meta::MetaData::read_from_file(path, false).map_err(|e| decode_err(path, e))?;
         let header = meta
             .headers
             .first()
             .ok_or_else(|| decode_err(path, "EXR file has no layers"))?;
         let size = header.layer_size;
-        let to_u32 = |v: usize| u32::try_from(v).map_err(|_| decode_err(path, "EXR layer too large"));
+        let to_u32 =
+            |v: usize| u32::try_from(v).map_err(|_| decode_err(path, "EXR layer too large"));
         return Ok((ImageKind::Exr, to_u32(size.0)?, to_u32(size.1)?));
     }
     let reader = image::ImageReader::open(path)
@@ -81,7 +83,10 @@ pub(crate) fn probe(path: &Path) -> Result<(ImageKind, u32, u32), CaptureError> 
         .with_guessed_format()
         .map_err(|e| CaptureError::io(path, e))?;
     if reader.format().is_none() {
-        return Err(decode_err(path, "unknown image format (expected PNG, JPEG or EXR)"));
+        return Err(decode_err(
+            path,
+            "unknown image format (expected PNG, JPEG or EXR)",
+        ));
     }
     let (w, h) = reader.into_dimensions().map_err(|e| decode_err(path, e))?;
     Ok((ImageKind::Raster, w, h))
@@ -99,7 +104,10 @@ fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
 }
 
 fn decode_err(path: &Path, e: impl std::fmt::Display) -> CaptureError {
-    CaptureError::ImageDecode { path: path.to_path_buf(), message: e.to_string() }
+    CaptureError::ImageDecode {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
 }
 
 /// Checks an image size against `max_side`.
@@ -150,9 +158,19 @@ fn decode_raster(path: &Path, max_side: u32) -> Result<DecodedImage, CaptureErro
     let mut alpha = Vec::with_capacity(n);
     for p in rgba.pixels() {
         rgb.extend_from_slice(&[p.0[0], p.0[1], p.0[2]].map(|c| c.clamp(0.0, 1.0)));
-        alpha.push(if has_alpha { p.0[3].clamp(0.0, 1.0) } else { 1.0 });
+        alpha.push(if has_alpha {
+            p.0[3].clamp(0.0, 1.0)
+        } else {
+            1.0
+        });
     }
-    Ok(DecodedImage { width, height, rgb, alpha, has_alpha })
+    Ok(DecodedImage {
+        width,
+        height,
+        rgb,
+        alpha,
+        has_alpha,
+    })
 }
 
 struct ExrPixels {
@@ -185,15 +203,29 @@ fn decode_exr(path: &Path) -> Result<DecodedImage, CaptureError> {
     let mut rgb = Vec::with_capacity(n * 3);
     let mut alpha = Vec::with_capacity(n);
     for p in px.rgba.chunks_exact(4) {
-        let a = if px.has_alpha { sanitize(p[3]).clamp(0.0, 1.0) } else { 1.0 };
+        let a = if px.has_alpha {
+            sanitize(p[3]).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
         // Un-premultiply; fully transparent pixels keep their (zero) colour.
-        let inv = if px.has_alpha && a > 1e-6 { 1.0 / a } else { 1.0 };
+        let inv = if px.has_alpha && a > 1e-6 {
+            1.0 / a
+        } else {
+            1.0
+        };
         for &c in &p[..3] {
             rgb.push(linear_to_srgb(sanitize(c) * inv));
         }
         alpha.push(a);
     }
-    Ok(DecodedImage { width, height, rgb, alpha, has_alpha: px.has_alpha })
+    Ok(DecodedImage {
+        width,
+        height,
+        rgb,
+        alpha,
+        has_alpha: px.has_alpha,
+    })
 }
 
 fn sanitize(x: f32) -> f32 {
@@ -206,24 +238,27 @@ fn sanitize(x: f32) -> f32 {
     }
 }
 
-/// sRGB transfer function (IEC 61966-2-1) after clamping to [0, 1].
+/// sRGB transfer function (IEC 61966-2-1) after clamping to [0, 1]; computed in f64 so
+/// 0 and 1 map exactly to 0 and 1.
 pub fn linear_to_srgb(x: f32) -> f32 {
-    let x = x.clamp(0.0, 1.0);
-    if x <= 0.003_130_8 {
+    let x = f64::from(x.clamp(0.0, 1.0));
+    let y = if x <= 0.003_130_8 {
         12.92 * x
     } else {
         1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
+    };
+    y.clamp(0.0, 1.0) as f32
 }
 
 /// Inverse of [`linear_to_srgb`] on [0, 1].
 pub fn srgb_to_linear(x: f32) -> f32 {
-    let x = x.clamp(0.0, 1.0);
-    if x <= 0.040_45 {
+    let x = f64::from(x.clamp(0.0, 1.0));
+    let y = if x <= 0.040_45 {
         x / 12.92
     } else {
         ((x + 0.055) / 1.055).powf(2.4)
-    }
+    };
+    y.clamp(0.0, 1.0) as f32
 }
 
 /// Resamples a distorted photograph to the ideal pinhole `camera` (same intrinsics, same
@@ -255,19 +290,29 @@ pub(crate) fn undistort(img: &DecodedImage, camera: &Camera, d: &Distortion) -> 
             for (tx, ty, wt) in taps {
                 let i = ty * w + tx;
                 let a = img.alpha[i];
-                for c in 0..3 {
-                    acc[c] += wt * a * img.rgb[i * 3 + c];
+                for (c, v) in acc.iter_mut().zip(&img.rgb[i * 3..i * 3 + 3]) {
+                    *c += wt * a * v;
                 }
                 acc[3] += wt * a;
             }
             let o = y * w + x;
             alpha[o] = acc[3];
             for c in 0..3 {
-                rgb[o * 3 + c] = if acc[3] > 1e-6 { (acc[c] / acc[3]).clamp(0.0, 1.0) } else { 0.0 };
+                rgb[o * 3 + c] = if acc[3] > 1e-6 {
+                    (acc[c] / acc[3]).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
             }
         }
     }
-    DecodedImage { width: img.width, height: img.height, rgb, alpha, has_alpha: img.has_alpha }
+    DecodedImage {
+        width: img.width,
+        height: img.height,
+        rgb,
+        alpha,
+        has_alpha: img.has_alpha,
+    }
 }
 
 #[cfg(test)]
@@ -277,7 +322,9 @@ mod tests {
     #[test]
     fn srgb_round_trip_and_anchors() {
         assert_eq!(linear_to_srgb(0.0), 0.0);
-        assert!((linear_to_srgb(1.0) - 1.0).abs() < 1e-6);
+        assert_eq!(linear_to_srgb(1.0), 1.0);
+        assert_eq!(linear_to_srgb(7.0), 1.0);
+        assert_eq!(linear_to_srgb(-1.0), 0.0);
         assert!((linear_to_srgb(0.18) - 0.4613).abs() < 1e-3);
         for i in 0..=100 {
             let x = i as f32 / 100.0;

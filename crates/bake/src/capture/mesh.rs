@@ -24,7 +24,10 @@ pub struct MeshLimits {
 
 impl Default for MeshLimits {
     fn default() -> Self {
-        MeshLimits { max_file_bytes: 2 << 30, max_triangles: 20_000_000 }
+        MeshLimits {
+            max_file_bytes: 2 << 30,
+            max_triangles: 20_000_000,
+        }
     }
 }
 
@@ -32,34 +35,52 @@ impl Default for MeshLimits {
 /// The result is checked: at least one triangle, UVs on every primitive, finite positions
 /// and UVs, indices in range.
 pub fn load_mesh(path: &Path, limits: &MeshLimits) -> Result<Scene, CaptureError> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
     let scene = match ext.as_deref() {
         Some("glb") | Some("gltf") => {
             check_file_size(path, limits)?;
-            dnr_runtime::scene::load_gltf(path)
-                .map_err(|e| CaptureError::Gltf { path: path.to_path_buf(), message: e.to_string() })?
+            dnr_runtime::scene::load_gltf(path).map_err(|e| CaptureError::Gltf {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?
         }
         Some("obj") => {
             let bytes = read_limited(path, limits)?;
             let text = String::from_utf8_lossy(&bytes);
-            Scene { primitives: vec![parse_obj(path, &text, limits)?] }
+            Scene {
+                primitives: vec![parse_obj(path, &text, limits)?],
+            }
         }
         Some("ply") => {
             let bytes = read_limited(path, limits)?;
-            Scene { primitives: vec![parse_ply(path, &bytes, limits)?] }
+            Scene {
+                primitives: vec![parse_ply(path, &bytes, limits)?],
+            }
         }
-        _ => return Err(CaptureError::MeshFormat { path: path.to_path_buf() }),
+        _ => {
+            return Err(CaptureError::MeshFormat {
+                path: path.to_path_buf(),
+            })
+        }
     };
     validate(path, &scene, limits)?;
     Ok(scene)
 }
 
 fn check_file_size(path: &Path, limits: &MeshLimits) -> Result<(), CaptureError> {
-    let len = std::fs::metadata(path).map_err(|e| CaptureError::io(path, e))?.len();
+    let len = std::fs::metadata(path)
+        .map_err(|e| CaptureError::io(path, e))?
+        .len();
     if len > limits.max_file_bytes {
         return Err(CaptureError::MeshTooLarge {
             path: path.to_path_buf(),
-            message: format!("file is {len} bytes, over the limit of {}", limits.max_file_bytes),
+            message: format!(
+                "file is {len} bytes, over the limit of {}",
+                limits.max_file_bytes
+            ),
         });
     }
     Ok(())
@@ -74,19 +95,28 @@ fn read_limited(path: &Path, limits: &MeshLimits) -> Result<Vec<u8>, CaptureErro
 fn validate(path: &Path, scene: &Scene, limits: &MeshLimits) -> Result<(), CaptureError> {
     let triangles: usize = scene.primitives.iter().map(|p| p.indices.len() / 3).sum();
     if triangles == 0 {
-        return Err(CaptureError::MeshEmpty { path: path.to_path_buf() });
+        return Err(CaptureError::MeshEmpty {
+            path: path.to_path_buf(),
+        });
     }
     if triangles > limits.max_triangles {
         return Err(too_many_triangles(path, limits));
     }
     let many = scene.primitives.len() > 1;
     for (pi, p) in scene.primitives.iter().enumerate() {
-        let what = if many { format!("primitive {pi}") } else { "mesh".to_string() };
+        let what = if many {
+            format!("primitive {pi}")
+        } else {
+            "mesh".to_string()
+        };
         if p.indices.is_empty() {
             continue;
         }
         if p.uvs.len() != p.positions.len() {
-            return Err(CaptureError::MeshNoUvs { path: path.to_path_buf(), what });
+            return Err(CaptureError::MeshNoUvs {
+                path: path.to_path_buf(),
+                what,
+            });
         }
         let bad = |message: String| CaptureError::MeshParse {
             path: path.to_path_buf(),
@@ -94,16 +124,24 @@ fn validate(path: &Path, scene: &Scene, limits: &MeshLimits) -> Result<(), Captu
             message,
         };
         if p.indices.len() % 3 != 0 {
-            return Err(bad(format!("index count {} is not a multiple of 3", p.indices.len())));
+            return Err(bad(format!(
+                "index count {} is not a multiple of 3",
+                p.indices.len()
+            )));
         }
         if let Some(i) = p.indices.iter().find(|&&i| i as usize >= p.positions.len()) {
-            return Err(bad(format!("index {i} out of range ({} vertices)", p.positions.len())));
+            return Err(bad(format!(
+                "index {i} out of range ({} vertices)",
+                p.positions.len()
+            )));
         }
         if let Some(i) = p.positions.iter().position(|v| !v.is_finite()) {
             return Err(bad(format!("vertex {i} has a non-finite position")));
         }
         if let Some(i) = p.uvs.iter().position(|v| !v.is_finite()) {
-            return Err(bad(format!("vertex {i} has a non-finite texture coordinate")));
+            return Err(bad(format!(
+                "vertex {i} has a non-finite texture coordinate"
+            )));
         }
     }
     Ok(())
@@ -124,7 +162,10 @@ struct Welder {
 
 impl Welder {
     fn new() -> Self {
-        Welder { map: HashMap::new(), prim: Primitive::default() }
+        Welder {
+            map: HashMap::new(),
+            prim: Primitive::default(),
+        }
     }
 
     /// `uv` is already in glTF convention; `key` identifies it (an index or the bit pattern).
@@ -174,7 +215,8 @@ pub fn parse_obj(path: &Path, text: &str, limits: &MeshLimits) -> Result<Primiti
         let Some(keyword) = toks.next() else { continue };
         match keyword {
             "v" => {
-                let v = parse_floats::<3>(&mut toks).ok_or_else(|| err("expected `v x y z`".into()))?;
+                let v =
+                    parse_floats::<3>(&mut toks).ok_or_else(|| err("expected `v x y z`".into()))?;
                 positions.push(Vec3::from_array(v));
             }
             "vt" => {
@@ -214,21 +256,28 @@ pub fn parse_obj(path: &Path, text: &str, limits: &MeshLimits) -> Result<Primiti
                             what: format!("face at line {line_no}"),
                         });
                     }
-                    let ti = resolve_index(ti, texcoords.len())
-                        .map_err(|m| err(format!("face corner {tok:?}: texture coordinate index {m}")))?;
+                    let ti = resolve_index(ti, texcoords.len()).map_err(|m| {
+                        err(format!("face corner {tok:?}: texture coordinate index {m}"))
+                    })?;
                     let v = welder.vertex(vi as u32, positions[vi], ti as u64, texcoords[ti]);
                     corners.push(v);
                 }
                 if corners.len() < 3 {
-                    return Err(err(format!("face with {} corners (at least 3 needed)", corners.len())));
+                    return Err(err(format!(
+                        "face with {} corners (at least 3 needed)",
+                        corners.len()
+                    )));
                 }
-                push_fan(&mut welder.prim.indices, &corners, limits).ok_or_else(|| too_many_triangles(path, limits))?;
+                push_fan(&mut welder.prim.indices, &corners, limits)
+                    .ok_or_else(|| too_many_triangles(path, limits))?;
             }
             _ => {}
         }
     }
     if welder.prim.indices.is_empty() {
-        return Err(CaptureError::MeshEmpty { path: path.to_path_buf() });
+        return Err(CaptureError::MeshEmpty {
+            path: path.to_path_buf(),
+        });
     }
     Ok(welder.prim)
 }
@@ -243,7 +292,9 @@ fn parse_floats<'a, const N: usize>(toks: &mut impl Iterator<Item = &'a str>) ->
 
 /// OBJ index (1-based, or negative from the end) to a 0-based index below `len`.
 fn resolve_index(tok: &str, len: usize) -> Result<usize, String> {
-    let i: i64 = tok.parse().map_err(|_| format!("{tok:?} is not an integer"))?;
+    let i: i64 = tok
+        .parse()
+        .map_err(|_| format!("{tok:?} is not an integer"))?;
     let r = if i > 0 { i - 1 } else { len as i64 + i };
     if i == 0 || r < 0 || r >= len as i64 {
         return Err(format!("{i} out of range ({len} defined so far)"));
@@ -308,8 +359,15 @@ impl Scalar {
 
 #[derive(Clone, Debug)]
 enum PlyProperty {
-    Scalar { name: String, ty: Scalar },
-    List { name: String, count: Scalar, item: Scalar },
+    Scalar {
+        name: String,
+        ty: Scalar,
+    },
+    List {
+        name: String,
+        count: Scalar,
+        item: Scalar,
+    },
 }
 
 #[derive(Clone, Debug)]
@@ -341,8 +399,12 @@ impl<'a> PlyBody<'a> {
             if self.pos >= self.bytes.len() {
                 return Err("unexpected end of file".into());
             }
-            let end = self.bytes[self.pos..].iter().position(|&b| b == b'\n').map_or(self.bytes.len(), |e| self.pos + e);
-            let line = std::str::from_utf8(&self.bytes[self.pos..end]).map_err(|_| "not UTF-8 text".to_string())?;
+            let end = self.bytes[self.pos..]
+                .iter()
+                .position(|&b| b == b'\n')
+                .map_or(self.bytes.len(), |e| self.pos + e);
+            let line = std::str::from_utf8(&self.bytes[self.pos..end])
+                .map_err(|_| "not UTF-8 text".to_string())?;
             self.pos = end + 1;
             self.line += 1;
             let toks: Vec<&'a str> = line.split_whitespace().collect();
@@ -356,10 +418,15 @@ impl<'a> PlyBody<'a> {
     fn value(&mut self, ty: Scalar) -> Result<f64, String> {
         if self.format == PlyFormat::Ascii {
             let t = self.tokens.next().ok_or("too few values in the record")?;
-            return t.parse::<f64>().map_err(|_| format!("{t:?} is not a number"));
+            return t
+                .parse::<f64>()
+                .map_err(|_| format!("{t:?} is not a number"));
         }
         let n = ty.size();
-        let b = self.bytes.get(self.pos..self.pos + n).ok_or("unexpected end of file")?;
+        let b = self
+            .bytes
+            .get(self.pos..self.pos + n)
+            .ok_or("unexpected end of file")?;
         self.pos += n;
         let mut a = [0u8; 8];
         a[..n].copy_from_slice(b);
@@ -387,14 +454,27 @@ impl<'a> PlyBody<'a> {
 }
 
 /// UV property name pairs accepted on PLY vertices, in order of preference.
-const PLY_UV_NAMES: [(&str, &str); 4] = [("s", "t"), ("u", "v"), ("texture_u", "texture_v"), ("texture_s", "texture_t")];
+const PLY_UV_NAMES: [(&str, &str); 4] = [
+    ("s", "t"),
+    ("u", "v"),
+    ("texture_u", "texture_v"),
+    ("texture_s", "texture_t"),
+];
 
 /// Parses a PLY file (ascii, binary little- or big-endian): vertex `x, y, z` plus UVs as
 /// `s, t`, `u, v`, `texture_u, texture_v` or `texture_s, texture_t`, or per-corner UVs as a
 /// face list property `texcoord`; faces from the list `vertex_indices` (or `vertex_index`),
 /// fan triangulated. Other elements and properties are skipped.
-pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primitive, CaptureError> {
-    let perr = |location: String, message: String| CaptureError::MeshParse { path: path.to_path_buf(), location, message };
+pub fn parse_ply(
+    path: &Path,
+    bytes: &[u8],
+    limits: &MeshLimits,
+) -> Result<Primitive, CaptureError> {
+    let perr = |location: String, message: String| CaptureError::MeshParse {
+        path: path.to_path_buf(),
+        location,
+        message,
+    };
     // Header: text lines up to `end_header`.
     let mut pos = 0usize;
     let mut line_no = 0usize;
@@ -405,16 +485,25 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
             .iter()
             .position(|&b| b == b'\n')
             .map(|e| pos + e)
-            .ok_or_else(|| perr(format!("line {}", line_no + 1), "header has no end_header line".into()))?;
+            .ok_or_else(|| {
+                perr(
+                    format!("line {}", line_no + 1),
+                    "header has no end_header line".into(),
+                )
+            })?;
         line_no += 1;
         let here = format!("line {line_no}");
-        let line = std::str::from_utf8(&bytes[pos..end]).map_err(|_| perr(here.clone(), "header is not text".into()))?;
+        let line = std::str::from_utf8(&bytes[pos..end])
+            .map_err(|_| perr(here.clone(), "header is not text".into()))?;
         let line = line.trim_end_matches('\r').trim();
         pos = end + 1;
         let toks: Vec<&str> = line.split_whitespace().collect();
         if line_no == 1 {
             if line != "ply" {
-                return Err(perr(here, "not a PLY file (first line must be `ply`)".into()));
+                return Err(perr(
+                    here,
+                    "not a PLY file (first line must be `ply`)".into(),
+                ));
             }
             continue;
         }
@@ -428,21 +517,46 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
                 });
             }
             Some("element") => {
-                let (Some(name), Some(count)) = (toks.get(1), toks.get(2).and_then(|c| c.parse::<usize>().ok())) else {
+                let (Some(name), Some(count)) = (
+                    toks.get(1),
+                    toks.get(2).and_then(|c| c.parse::<usize>().ok()),
+                ) else {
                     return Err(perr(here, "expected `element NAME COUNT`".into()));
                 };
-                elements.push(PlyElement { name: name.to_string(), count, props: Vec::new() });
+                elements.push(PlyElement {
+                    name: name.to_string(),
+                    count,
+                    props: Vec::new(),
+                });
             }
             Some("property") => {
-                let el = elements.last_mut().ok_or_else(|| perr(here.clone(), "property before any element".into()))?;
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| perr(here.clone(), "property before any element".into()))?;
                 let prop = if toks.get(1) == Some(&"list") {
-                    match (toks.get(2).and_then(|t| Scalar::parse(t)), toks.get(3).and_then(|t| Scalar::parse(t)), toks.get(4)) {
-                        (Some(count), Some(item), Some(name)) => PlyProperty::List { name: name.to_string(), count, item },
-                        _ => return Err(perr(here, "expected `property list COUNT_TYPE ITEM_TYPE NAME`".into())),
+                    match (
+                        toks.get(2).and_then(|t| Scalar::parse(t)),
+                        toks.get(3).and_then(|t| Scalar::parse(t)),
+                        toks.get(4),
+                    ) {
+                        (Some(count), Some(item), Some(name)) => PlyProperty::List {
+                            name: name.to_string(),
+                            count,
+                            item,
+                        },
+                        _ => {
+                            return Err(perr(
+                                here,
+                                "expected `property list COUNT_TYPE ITEM_TYPE NAME`".into(),
+                            ))
+                        }
                     }
                 } else {
                     match (toks.get(1).and_then(|t| Scalar::parse(t)), toks.get(2)) {
-                        (Some(ty), Some(name)) => PlyProperty::Scalar { name: name.to_string(), ty },
+                        (Some(ty), Some(name)) => PlyProperty::Scalar {
+                            name: name.to_string(),
+                            ty,
+                        },
                         _ => return Err(perr(here, "expected `property TYPE NAME`".into())),
                     }
                 };
@@ -460,10 +574,14 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
     for el in &elements {
         let min_record = match format {
             PlyFormat::Ascii => 2,
-            _ => el.props.iter().map(|p| match p {
-                PlyProperty::Scalar { ty, .. } => ty.size(),
-                PlyProperty::List { count, .. } => count.size(),
-            }).sum::<usize>(),
+            _ => el
+                .props
+                .iter()
+                .map(|p| match p {
+                    PlyProperty::Scalar { ty, .. } => ty.size(),
+                    PlyProperty::List { count, .. } => count.size(),
+                })
+                .sum::<usize>(),
         };
         let too_many = (el.name == "face" && el.count > limits.max_triangles)
             || (el.name == "vertex" && el.count > limits.max_triangles.saturating_mul(3));
@@ -474,11 +592,23 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
             });
         }
         if el.count.saturating_mul(min_record) > remaining {
-            return Err(perr("header".into(), format!("element {} count {} does not fit in the file", el.name, el.count)));
+            return Err(perr(
+                "header".into(),
+                format!(
+                    "element {} count {} does not fit in the file",
+                    el.name, el.count
+                ),
+            ));
         }
     }
 
-    let mut body = PlyBody { format, bytes, pos, line: line_no, tokens: Vec::new().into_iter() };
+    let mut body = PlyBody {
+        format,
+        bytes,
+        pos,
+        line: line_no,
+        tokens: Vec::new().into_iter(),
+    };
     let mut positions: Vec<Vec3> = Vec::new();
     let mut vertex_uvs: Vec<Vec2> = Vec::new();
     let mut have_vertex_uvs = false;
@@ -488,11 +618,20 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
     for el in &elements {
         match el.name.as_str() {
             "vertex" => {
-                let idx = |n: &str| el.props.iter().position(|p| matches!(p, PlyProperty::Scalar { name, .. } if name == n));
-                let (Some(ix), Some(iy), Some(iz)) = (idx("x"), idx("y"), idx("z")) else {
-                    return Err(perr("header".into(), "element vertex needs scalar properties x, y, z".into()));
+                let idx = |n: &str| {
+                    el.props
+                        .iter()
+                        .position(|p| matches!(p, PlyProperty::Scalar { name, .. } if name == n))
                 };
-                let uv_idx = PLY_UV_NAMES.iter().find_map(|(a, b)| Some((idx(a)?, idx(b)?)));
+                let (Some(ix), Some(iy), Some(iz)) = (idx("x"), idx("y"), idx("z")) else {
+                    return Err(perr(
+                        "header".into(),
+                        "element vertex needs scalar properties x, y, z".into(),
+                    ));
+                };
+                let uv_idx = PLY_UV_NAMES
+                    .iter()
+                    .find_map(|(a, b)| Some((idx(a)?, idx(b)?)));
                 have_vertex_uvs = uv_idx.is_some();
                 positions.reserve(el.count);
                 vertex_uvs.reserve(if have_vertex_uvs { el.count } else { 0 });
@@ -510,9 +649,17 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
                 }
             }
             "face" => {
-                let list_idx = |n: &str| el.props.iter().position(|p| matches!(p, PlyProperty::List { name, .. } if name == n));
-                let Some(iv) = list_idx("vertex_indices").or_else(|| list_idx("vertex_index")) else {
-                    return Err(perr("header".into(), "element face needs a list property vertex_indices".into()));
+                let list_idx = |n: &str| {
+                    el.props
+                        .iter()
+                        .position(|p| matches!(p, PlyProperty::List { name, .. } if name == n))
+                };
+                let Some(iv) = list_idx("vertex_indices").or_else(|| list_idx("vertex_index"))
+                else {
+                    return Err(perr(
+                        "header".into(),
+                        "element face needs a list property vertex_indices".into(),
+                    ));
                 };
                 let itc = list_idx("texcoord");
                 for r in 0..el.count {
@@ -533,7 +680,13 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
                             let x = body.value(*item).map_err(|m| e(m, &body))?;
                             if k == iv {
                                 if !(0.0..positions.len() as f64).contains(&x) || x.fract() != 0.0 {
-                                    return Err(e(format!("vertex index {x} out of range ({} vertices)", positions.len()), &body));
+                                    return Err(e(
+                                        format!(
+                                            "vertex index {x} out of range ({} vertices)",
+                                            positions.len()
+                                        ),
+                                        &body,
+                                    ));
                                 }
                                 verts.push(x as u32);
                             } else if Some(k) == itc {
@@ -542,7 +695,10 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
                         }
                     }
                     if verts.len() < 3 {
-                        return Err(e(format!("face with {} corners (at least 3 needed)", verts.len()), &body));
+                        return Err(e(
+                            format!("face with {} corners (at least 3 needed)", verts.len()),
+                            &body,
+                        ));
                     }
                     corners.clear();
                     if tcs.len() == verts.len() * 2 {
@@ -553,13 +709,19 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
                         }
                     } else if have_vertex_uvs {
                         for &vi in &verts {
-                            corners.push(welder.vertex(vi, positions[vi as usize], 0, vertex_uvs[vi as usize]));
+                            corners.push(welder.vertex(
+                                vi,
+                                positions[vi as usize],
+                                0,
+                                vertex_uvs[vi as usize],
+                            ));
                         }
                     } else {
                         saw_faces_without_uvs = true;
                         continue;
                     }
-                    push_fan(&mut welder.prim.indices, &corners, limits).ok_or_else(|| too_many_triangles(path, limits))?;
+                    push_fan(&mut welder.prim.indices, &corners, limits)
+                        .ok_or_else(|| too_many_triangles(path, limits))?;
                 }
             }
             other => {
@@ -574,10 +736,15 @@ pub fn parse_ply(path: &Path, bytes: &[u8], limits: &MeshLimits) -> Result<Primi
         }
     }
     if saw_faces_without_uvs {
-        return Err(CaptureError::MeshNoUvs { path: path.to_path_buf(), what: "mesh".into() });
+        return Err(CaptureError::MeshNoUvs {
+            path: path.to_path_buf(),
+            what: "mesh".into(),
+        });
     }
     if welder.prim.indices.is_empty() {
-        return Err(CaptureError::MeshEmpty { path: path.to_path_buf() });
+        return Err(CaptureError::MeshEmpty {
+            path: path.to_path_buf(),
+        });
     }
     Ok(welder.prim)
 }

@@ -22,7 +22,9 @@ pub use error::CaptureError;
 pub use mesh::{load_mesh, MeshLimits};
 pub use transforms::Distortion;
 
-use self::image::{check_side, decode_image, probe, resolve_image_path, undistort, TRIED_EXTENSIONS};
+use self::image::{
+    check_side, decode_image, probe, resolve_image_path, undistort, TRIED_EXTENSIONS,
+};
 use transforms::{read_transforms, resolve_camera, TransformsFile};
 
 /// Default mesh names, tried in this order when neither `--mesh` nor `mesh_path` is given.
@@ -73,7 +75,12 @@ pub struct LoadOptions {
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        LoadOptions { mesh: None, llffhold: 8, undistort: true, limits: Limits::default() }
+        LoadOptions {
+            mesh: None,
+            llffhold: 8,
+            undistort: true,
+            limits: Limits::default(),
+        }
     }
 }
 
@@ -150,6 +157,25 @@ pub struct Capture {
     pub warnings: Vec<String>,
 }
 
+/// Which frames of a transforms file are held out for testing.
+#[derive(Clone, Copy, Debug)]
+enum HoldOut {
+    None,
+    All,
+    /// Index 0, n, 2n, ... (the llffhold convention); 0 holds none out.
+    Every(usize),
+}
+
+impl HoldOut {
+    fn holds(self, index: usize) -> bool {
+        match self {
+            HoldOut::None => false,
+            HoldOut::All => true,
+            HoldOut::Every(n) => n != 0 && index % n == 0,
+        }
+    }
+}
+
 /// A frame whose image header has been read, not yet decoded.
 struct Planned {
     test: bool,
@@ -163,25 +189,35 @@ impl Capture {
     /// Loads the capture in `dir` (see the module docs and `shared/capture-format.md`).
     pub fn load(dir: &Path, opts: &LoadOptions) -> Result<Capture, CaptureError> {
         let limits = &opts.limits;
-        let read = |name: &str| read_transforms(&dir.join(name), limits.max_json_bytes, limits.max_frames);
+        let read =
+            |name: &str| read_transforms(&dir.join(name), limits.max_json_bytes, limits.max_frames);
         let train_path = dir.join("transforms_train.json");
         let single_path = dir.join("transforms.json");
 
-        // (file, which frame indices are test) per transforms file.
-        let mut files: Vec<(TransformsFile, Box<dyn Fn(usize) -> bool>)> = Vec::new();
+        // Each transforms file with the rule for which of its frames are held out.
+        let mut files: Vec<(TransformsFile, HoldOut)> = Vec::new();
         let mut warnings = Vec::new();
         let split = if train_path.is_file() {
-            files.push((read("transforms_train.json")?, Box::new(|_| false)));
-            let test = ["transforms_test.json", "transforms_val.json"].into_iter().map(|n| dir.join(n)).find(|p| p.is_file());
+            files.push((read("transforms_train.json")?, HoldOut::None));
+            let test = ["transforms_test.json", "transforms_val.json"]
+                .into_iter()
+                .map(|n| dir.join(n))
+                .find(|p| p.is_file());
             if let Some(t) = &test {
-                files.push((read_transforms(t, limits.max_json_bytes, limits.max_frames)?, Box::new(|_| true)));
+                files.push((
+                    read_transforms(t, limits.max_json_bytes, limits.max_frames)?,
+                    HoldOut::All,
+                ));
             } else {
                 warnings.push(format!(
                     "{}: no transforms_test.json or transforms_val.json: no held-out frames",
                     dir.display()
                 ));
             }
-            SplitSource::Files { train: train_path, test }
+            SplitSource::Files {
+                train: train_path,
+                test,
+            }
         } else if single_path.is_file() {
             let every = opts.llffhold;
             let file = read("transforms.json")?;
@@ -195,10 +231,15 @@ impl Capture {
                     ),
                 });
             }
-            files.push((file, Box::new(move |i| every != 0 && i % every == 0)));
-            SplitSource::LlffHold { file: single_path, every }
+            files.push((file, HoldOut::Every(every)));
+            SplitSource::LlffHold {
+                file: single_path,
+                every,
+            }
         } else {
-            return Err(CaptureError::NoTransforms { dir: dir.to_path_buf() });
+            return Err(CaptureError::NoTransforms {
+                dir: dir.to_path_buf(),
+            });
         };
 
         let total_frames: usize = files.iter().map(|(f, _)| f.frames.len()).sum();
@@ -213,7 +254,7 @@ impl Capture {
         // Pass 1: resolve paths, read headers, resolve cameras; nothing large is allocated.
         let mut planned = Vec::with_capacity(total_frames);
         let mut total_pixels = 0u64;
-        for (file, is_test) in &files {
+        for (file, hold_out) in &files {
             warnings.extend(file.warnings.iter().cloned());
             let mut distorted = 0usize;
             for frame in &file.frames {
@@ -222,7 +263,6 @@ impl Capture {
                         path: file.path.clone(),
                         field: format!("frames[{}].file_path", frame.index),
                         image: dir.join(&frame.file_path),
-                        extensionless: true,
                     }
                 })?;
                 let (_, w, h) = probe(&image_path)?;
@@ -242,7 +282,7 @@ impl Capture {
                     distorted += 1;
                 }
                 planned.push(Planned {
-                    test: is_test(frame.index),
+                    test: hold_out.holds(frame.index),
                     name: frame_name(&frame.file_path),
                     image_path,
                     camera: resolved.camera,
@@ -304,7 +344,15 @@ impl Capture {
 
         let mesh_path = find_mesh(dir, opts, &files.iter().map(|(f, _)| f).collect::<Vec<_>>())?;
         let mesh = load_mesh(&mesh_path, &limits.mesh)?;
-        Ok(Capture { dir: dir.to_path_buf(), train, test, mesh_path, mesh, split, warnings })
+        Ok(Capture {
+            dir: dir.to_path_buf(),
+            train,
+            test,
+            mesh_path,
+            mesh,
+            split,
+            warnings,
+        })
     }
 }
 
@@ -315,7 +363,9 @@ fn frame_name(file_path: &str) -> String {
         s = rest;
     }
     if let Some((stem, ext)) = s.rsplit_once('.') {
-        if TRIED_EXTENSIONS.contains(&ext) || TRIED_EXTENSIONS.iter().any(|e| e.eq_ignore_ascii_case(ext)) {
+        if TRIED_EXTENSIONS.contains(&ext)
+            || TRIED_EXTENSIONS.iter().any(|e| e.eq_ignore_ascii_case(ext))
+        {
             return stem.to_string();
         }
     }
@@ -324,10 +374,17 @@ fn frame_name(file_path: &str) -> String {
 
 /// The proxy mesh: `--mesh`, else the first `mesh_path` in the transforms files, else the
 /// first default name that exists.
-fn find_mesh(dir: &Path, opts: &LoadOptions, files: &[&TransformsFile]) -> Result<PathBuf, CaptureError> {
+fn find_mesh(
+    dir: &Path,
+    opts: &LoadOptions,
+    files: &[&TransformsFile],
+) -> Result<PathBuf, CaptureError> {
     if let Some(p) = &opts.mesh {
         if !p.is_file() {
-            return Err(CaptureError::io(p, std::io::Error::new(std::io::ErrorKind::NotFound, "mesh file not found (--mesh)")));
+            return Err(CaptureError::io(
+                p,
+                std::io::Error::new(std::io::ErrorKind::NotFound, "mesh file not found (--mesh)"),
+            ));
         }
         return Ok(p.clone());
     }
@@ -347,7 +404,9 @@ fn find_mesh(dir: &Path, opts: &LoadOptions, files: &[&TransformsFile]) -> Resul
         .iter()
         .map(|n| dir.join(n))
         .find(|p| p.is_file())
-        .ok_or_else(|| CaptureError::NoMesh { dir: dir.to_path_buf() })
+        .ok_or_else(|| CaptureError::NoMesh {
+            dir: dir.to_path_buf(),
+        })
 }
 
 #[cfg(test)]

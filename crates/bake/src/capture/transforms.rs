@@ -116,7 +116,9 @@ pub(crate) fn read_transforms(
     max_bytes: u64,
     max_frames: usize,
 ) -> Result<TransformsFile, CaptureError> {
-    let len = std::fs::metadata(path).map_err(|e| CaptureError::io(path, e))?.len();
+    let len = std::fs::metadata(path)
+        .map_err(|e| CaptureError::io(path, e))?
+        .len();
     if len > max_bytes {
         return Err(CaptureError::TooLarge {
             path: path.to_path_buf(),
@@ -145,7 +147,12 @@ pub(crate) fn parse_transforms(
                 path: path.to_path_buf(),
                 line: e.line(),
                 column: e.column(),
-                message: e.to_string(),
+                // serde_json appends the position, which the error already shows.
+                message: {
+                    let m = e.to_string();
+                    let suffix = format!(" at line {} column {}", e.line(), e.column());
+                    m.strip_suffix(&suffix).map(str::to_string).unwrap_or(m)
+                },
             };
             if !e.is_syntax() {
                 return Err(original);
@@ -157,7 +164,9 @@ pub(crate) fn parse_transforms(
         }
     };
     let ctx = Ctx { path };
-    let obj = root.as_object().ok_or_else(|| ctx.err("(root)", "expected a JSON object"))?;
+    let obj = root
+        .as_object()
+        .ok_or_else(|| ctx.err("(root)", "expected a JSON object"))?;
 
     let top = read_intrinsics(&ctx, obj, "")?;
     let mesh_path = match obj.get("mesh_path") {
@@ -191,10 +200,14 @@ pub(crate) fn parse_transforms(
     let mut warnings = Vec::new();
     for (i, fv) in frames_v.iter().enumerate() {
         let field = format!("frames[{i}]");
-        let fo = fv.as_object().ok_or_else(|| ctx.err(&field, "expected an object"))?;
+        let fo = fv
+            .as_object()
+            .ok_or_else(|| ctx.err(&field, "expected an object"))?;
         let file_path = match fo.get("file_path") {
             Some(Value::String(s)) if !s.is_empty() => s.clone(),
-            Some(Value::String(_)) => return Err(ctx.err(&format!("{field}.file_path"), "is empty")),
+            Some(Value::String(_)) => {
+                return Err(ctx.err(&format!("{field}.file_path"), "is empty"))
+            }
             Some(_) => return Err(ctx.err(&format!("{field}.file_path"), "expected a string")),
             None => return Err(ctx.err(&format!("{field}.file_path"), "missing")),
         };
@@ -203,9 +216,20 @@ pub(crate) fn parse_transforms(
         }
         let cam_to_world = read_matrix(&ctx, fo, &field, &mut warnings)?;
         let intrinsics = read_intrinsics(&ctx, fo, &format!("{field}."))?;
-        frames.push(RawFrame { index: i, file_path, cam_to_world, intrinsics });
+        frames.push(RawFrame {
+            index: i,
+            file_path,
+            cam_to_world,
+            intrinsics,
+        });
     }
-    Ok(TransformsFile { path: path.to_path_buf(), top, mesh_path, frames, warnings })
+    Ok(TransformsFile {
+        path: path.to_path_buf(),
+        top,
+        mesh_path,
+        frames,
+        warnings,
+    })
 }
 
 struct Ctx<'a> {
@@ -258,19 +282,37 @@ fn read_intrinsics(
         *slot = match obj.get(key) {
             None => None,
             Some(Value::Number(n)) => {
-                let x = n.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
-                    ctx.err(&format!("{prefix}{key}"), "not a finite number")
-                })?;
+                let x = n
+                    .as_f64()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| ctx.err(&format!("{prefix}{key}"), "not a finite number"))?;
                 Some(x)
             }
             Some(Value::Null) => {
-                return Err(ctx.err(&format!("{prefix}{key}"), "not a finite number (NaN, Infinity or null)"))
+                return Err(ctx.err(
+                    &format!("{prefix}{key}"),
+                    "not a finite number (NaN, Infinity or null)",
+                ))
             }
             Some(_) => return Err(ctx.err(&format!("{prefix}{key}"), "expected a number")),
         };
     }
     let [fl_x, fl_y, cx, cy, w, h, camera_angle_x, camera_angle_y, k1, k2, k3, p1, p2] = vals;
-    Ok(RawIntrinsics { fl_x, fl_y, cx, cy, w, h, camera_angle_x, camera_angle_y, k1, k2, k3, p1, p2 })
+    Ok(RawIntrinsics {
+        fl_x,
+        fl_y,
+        cx,
+        cy,
+        w,
+        h,
+        camera_angle_x,
+        camera_angle_y,
+        k1,
+        k2,
+        k3,
+        p1,
+        p2,
+    })
 }
 
 /// Reads `transform_matrix` (4x4 row-major, or 3x4 with an implied `[0, 0, 0, 1]` row).
@@ -322,11 +364,17 @@ fn read_matrix(
     let scale = norm(a) * norm(b) * norm(cc);
     // Scale-invariant test: |det| / product of column norms is |sin| of the axes' skew.
     if scale < 1e-30 || (det / scale).abs() < 1e-6 {
-        return Err(ctx.err(&mfield, "singular (the 3x3 rotation part has zero determinant)"));
+        return Err(ctx.err(
+            &mfield,
+            "singular (the 3x3 rotation part has zero determinant)",
+        ));
     }
     let dot = |u: [f64; 3], v: [f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
     let off = dot(a, b).abs().max(dot(a, cc).abs()).max(dot(b, cc).abs());
-    let unit = (norm(a) - 1.0).abs().max((norm(b) - 1.0).abs()).max((norm(cc) - 1.0).abs());
+    let unit = (norm(a) - 1.0)
+        .abs()
+        .max((norm(b) - 1.0).abs())
+        .max((norm(cc) - 1.0).abs());
     if off > 1e-3 || unit > 1e-3 || det < 0.0 {
         warnings.push(format!(
             "{}: {mfield}: rotation part is not a proper orthonormal rotation (used as given)",
@@ -361,7 +409,9 @@ fn sanitize_non_finite(text: &str) -> Option<String> {
         if ch == '"' {
             in_string = true;
         } else {
-            let token = ["-Infinity", "Infinity", "NaN"].into_iter().find(|t| rest.starts_with(t));
+            let token = ["-Infinity", "Infinity", "NaN"]
+                .into_iter()
+                .find(|t| rest.starts_with(t));
             if let Some(t) = token {
                 out.push_str("null");
                 rest = &rest[t.len()..];
@@ -413,7 +463,10 @@ pub(crate) fn resolve_camera(
         match v {
             None => Ok(None),
             Some(x) if x >= 1.0 && x <= u32::MAX as f64 && x.fract() == 0.0 => Ok(Some(x as u32)),
-            Some(x) => Err(ctx.err(&field(key), format!("expected a positive whole number of pixels, got {x}"))),
+            Some(x) => Err(ctx.err(
+                &field(key),
+                format!("expected a positive whole number of pixels, got {x}"),
+            )),
         }
     };
     let w = dim(k.w, "w")?;
@@ -432,7 +485,10 @@ pub(crate) fn resolve_camera(
     let (wf, hf) = (iw as f64, ih as f64);
     let angle_focal = |angle: f64, extent: f64, key: &str| -> Result<f64, CaptureError> {
         if !(angle > 0.0 && angle < std::f64::consts::PI) {
-            return Err(ctx.err(&field(key), format!("field of view must be in (0, pi) radians, got {angle}")));
+            return Err(ctx.err(
+                &field(key),
+                format!("field of view must be in (0, pi) radians, got {angle}"),
+            ));
         }
         Ok(0.5 * extent / (0.5 * angle).tan())
     };
@@ -457,7 +513,10 @@ pub(crate) fn resolve_camera(
     };
     for (f, key) in [(fx, "fl_x"), (fy, "fl_y")] {
         if !(f.is_finite() && f > 0.0 && f < 1e9) {
-            return Err(ctx.err(&field(key), format!("focal length must be positive and finite, got {f}")));
+            return Err(ctx.err(
+                &field(key),
+                format!("focal length must be positive and finite, got {f}"),
+            ));
         }
     }
     let cx = k.cx.unwrap_or(0.5 * wf);
@@ -489,7 +548,8 @@ mod tests {
 
     #[test]
     fn sanitize_replaces_tokens_outside_strings_only() {
-        let s = sanitize_non_finite(r#"{"a": NaN, "NaN": "x NaN", "b": [-Infinity, Infinity]}"#).unwrap();
+        let s = sanitize_non_finite(r#"{"a": NaN, "NaN": "x NaN", "b": [-Infinity, Infinity]}"#)
+            .unwrap();
         assert_eq!(s, r#"{"a": null, "NaN": "x NaN", "b": [null, null]}"#);
         assert!(sanitize_non_finite(r#"{"a": 1,}"#).is_none());
     }
@@ -499,7 +559,10 @@ mod tests {
         let d = Distortion::default();
         assert!(d.is_identity());
         assert_eq!(d.distort(0.3, -0.2), (0.3, -0.2));
-        let d = Distortion { k1: 0.1, ..Default::default() };
+        let d = Distortion {
+            k1: 0.1,
+            ..Default::default()
+        };
         let (x, y) = d.distort(0.5, 0.0);
         assert!((x - 0.5 * (1.0 + 0.1 * 0.25)).abs() < 1e-7 && y == 0.0);
     }

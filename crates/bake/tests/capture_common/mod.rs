@@ -7,7 +7,10 @@ use serde_json::{json, Value};
 
 /// The shared sample captures (read-only).
 pub fn shared_captures() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/captures"))
+    PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/captures"
+    ))
 }
 
 /// Writes an 8-bit RGBA PNG whose pixel (x, y) is `f(x, y)`.
@@ -21,7 +24,12 @@ pub fn write_png_rgba(path: &Path, w: u32, h: u32, f: impl Fn(u32, u32) -> [u8; 
 pub fn pattern(frame: usize) -> impl Fn(u32, u32) -> [u8; 4] {
     move |x, y| {
         let a = if (x + y) % 3 == 0 { 0 } else { 255 };
-        [(x * 17 + frame as u32) as u8, (y * 29) as u8, (x * y + 3) as u8, a]
+        [
+            (x * 17 + frame as u32) as u8,
+            (y * 29) as u8,
+            (x * y + 3) as u8,
+            a,
+        ]
     }
 }
 
@@ -31,10 +39,18 @@ pub fn look_at_rows(eye: [f64; 3]) -> Value {
     let z = [eye[0] / n, eye[1] / n, eye[2] / n];
     // x = up x z
     let up = [0.0, 1.0, 0.0];
-    let mut x = [up[1] * z[2] - up[2] * z[1], up[2] * z[0] - up[0] * z[2], up[0] * z[1] - up[1] * z[0]];
+    let mut x = [
+        up[1] * z[2] - up[2] * z[1],
+        up[2] * z[0] - up[0] * z[2],
+        up[0] * z[1] - up[1] * z[0],
+    ];
     let xn = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
     x = [x[0] / xn, x[1] / xn, x[2] / xn];
-    let y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]];
+    let y = [
+        z[1] * x[2] - z[2] * x[1],
+        z[2] * x[0] - z[0] * x[2],
+        z[0] * x[1] - z[1] * x[0],
+    ];
     json!([
         [x[0], y[0], z[0], eye[0]],
         [x[1], y[1], z[1], eye[1]],
@@ -68,7 +84,10 @@ pub fn simple_capture(n: usize, size: u32) -> tempfile::TempDir {
             json!({ "file_path": format!("images/f_{i}.png"), "transform_matrix": look_at_rows(eye(i)) })
         })
         .collect();
-    write_json(&dir.path().join("transforms.json"), &json!({ "camera_angle_x": 0.7, "frames": frames }));
+    write_json(
+        &dir.path().join("transforms.json"),
+        &json!({ "camera_angle_x": 0.7, "frames": frames }),
+    );
     std::fs::write(dir.path().join("mesh.obj"), quad_obj(true)).unwrap();
     dir
 }

@@ -12,13 +12,13 @@
 //! summed in the same order whatever the blocking or thread count, so results are bit-identical
 //! across runs and thread counts.
 //!
-//! This is the only module of the crate with `unsafe`: the AVX2+FMA micro-kernels (selected at
-//! run time when the CPU has them) use raw-pointer loads. Each has a safe scalar twin that
-//! [`set_force_scalar`] selects, so tests can run both.
+//! This is the only module of the crate with `unsafe`: the AVX2+FMA and AVX-512 micro-kernels
+//! (selected at run time from what the CPU reports) use raw-pointer loads. Every kernel has a
+//! safe scalar twin that [`set_simd_cap`] can force, so tests run both paths.
 #![allow(unsafe_code)]
 
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// Rows of A per micro-tile of [`gemm_nn`].
 pub const MR: usize = 6;
@@ -31,7 +31,7 @@ const NC: usize = 256;
 /// Rows of A per block of [`gemm_nn`] (MC x KC floats, in L2).
 const MC: usize = 72;
 /// Up to this many rows of A, [`gemm_nn`] reads B in place instead of packing it.
-const DIRECT_MAX_M: usize = 64;
+const DIRECT_MAX_M: usize = 0;
 /// A rows per micro-tile of [`gemm_nt`].
 const RT: usize = 4;
 /// B rows per micro-tile of [`gemm_nt`].
@@ -41,26 +41,62 @@ const KC_NT: usize = 512;
 /// Below this many multiply-adds a product runs on the calling thread.
 const PARALLEL_MIN_MACS: usize = 1 << 19;
 
-static FORCE_SCALAR: AtomicBool = AtomicBool::new(false);
+/// Instruction sets the kernels can use, in increasing order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum SimdLevel {
+    /// Portable safe Rust.
+    Scalar = 0,
+    /// AVX2 + FMA, 8 lanes.
+    Avx2 = 1,
+    /// AVX-512F, 16 lanes (NN products take two 16-column strips at once).
+    Avx512 = 2,
+}
 
-/// Forces the portable scalar kernels (for tests of the safe path); `false` restores detection.
+static SIMD_CAP: AtomicU8 = AtomicU8::new(SimdLevel::Avx512 as u8);
+
+/// Caps the instruction set the kernels may use (tests force [`SimdLevel::Scalar`]; benchmarks
+/// can emulate an AVX2-only CPU). [`SimdLevel::Avx512`] restores full detection.
+pub fn set_simd_cap(cap: SimdLevel) {
+    SIMD_CAP.store(cap as u8, Ordering::Relaxed);
+}
+
+/// Forces the portable scalar kernels (`true`) or restores detection (`false`).
 pub fn set_force_scalar(on: bool) {
-    FORCE_SCALAR.store(on, Ordering::Relaxed);
+    set_simd_cap(if on { SimdLevel::Scalar } else { SimdLevel::Avx512 });
 }
 
-/// Whether the AVX2+FMA kernels are in use.
+/// The instruction set in use: what the CPU has, limited by [`set_simd_cap`].
+pub fn simd_level() -> SimdLevel {
+    let cap = SIMD_CAP.load(Ordering::Relaxed);
+    let cpu = cpu_level();
+    if cap <= SimdLevel::Scalar as u8 {
+        SimdLevel::Scalar
+    } else if cap == SimdLevel::Avx2 as u8 {
+        cpu.min(SimdLevel::Avx2)
+    } else {
+        cpu
+    }
+}
+
+/// Whether SIMD kernels are in use.
 pub fn simd_active() -> bool {
-    !FORCE_SCALAR.load(Ordering::Relaxed) && cpu_has_avx2_fma()
+    simd_level() != SimdLevel::Scalar
 }
 
-fn cpu_has_avx2_fma() -> bool {
+fn cpu_level() -> SimdLevel {
     #[cfg(target_arch = "x86_64")]
     {
-        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+        if !(std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")) {
+            SimdLevel::Scalar
+        } else if std::is_x86_feature_detected!("avx512f") {
+            SimdLevel::Avx512
+        } else {
+            SimdLevel::Avx2
+        }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        false
+        SimdLevel::Scalar
     }
 }
 
@@ -198,10 +234,10 @@ pub fn gemm_nn(a: &PackedA, b: &[f32], b_rows: &[usize], n: usize, c: &mut [f32]
     assert!(ldc >= n && c.len() >= (m - 1) * ldc + n, "gemm_nn: C too small");
     let max_row = b_rows.iter().copied().max().unwrap_or(0);
     assert!(k == 0 || max_row + n <= b.len(), "gemm_nn: B row out of bounds");
-    let simd = simd_active();
-    let (rows, cols) = grid(m, n, m * n * k, MR, NR);
+    let level = simd_level();
+    let (rows, cols) = grid(m, n, m * n * k, MR, 2 * NR);
     let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
-    let ctx = NnCtx { a, b, b_rows, max_row, accumulate, simd };
+    let ctx = NnCtx { a, b, b_rows, max_row, accumulate, level };
     if blocks.len() == 1 {
         blocks.into_iter().for_each(|blk| ctx.block(blk));
     } else {
@@ -215,12 +251,50 @@ struct NnCtx<'a> {
     b_rows: &'a [usize],
     max_row: usize,
     accumulate: bool,
-    simd: bool,
+    level: SimdLevel,
+}
+
+/// Floats of slack for [`aligned_mut`].
+const ALIGN_SLACK: usize = 16;
+
+/// The part of `v` that starts at a 64-byte boundary (a cache line: whole-line vector loads).
+fn aligned_mut(v: &mut [f32]) -> &mut [f32] {
+    let off = (v.as_ptr() as usize).wrapping_neg() % 64 / 4;
+    let end = v.len() - ALIGN_SLACK + off;
+    &mut v[off..end]
+}
+
+/// Adds (or, on the first K block without `accumulate`, copies) `nv` columns of `mv` tile rows
+/// into the block's C rows `r0..` at column `js`.
+fn store_tile(rows: &mut [&mut [f32]], r0: usize, js: usize, mv: usize, nv: usize, tile: &[f32; MR * NR], first: bool) {
+    for r in 0..mv {
+        let src = &tile[r * NR..r * NR + nv];
+        if nv == NR {
+            // Fixed-size copies compile to a few vector moves instead of a memcpy call.
+            let dst: &mut [f32; NR] = (&mut rows[r0 + r][js..js + NR]).try_into().expect("NR columns");
+            let src: &[f32; NR] = src.try_into().expect("NR columns");
+            if first {
+                *dst = *src;
+            } else {
+                for i in 0..NR {
+                    dst[i] += src[i];
+                }
+            }
+            continue;
+        }
+        let dst = &mut rows[r0 + r][js..js + nv];
+        if first {
+            dst.copy_from_slice(src);
+        } else {
+            dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
+        }
+    }
 }
 
 impl NnCtx<'_> {
     /// BLIS loop order inside one block: column panels of NC (packed B in L2), K blocks of KC,
-    /// row blocks of MC (A in L2), then NR-wide strips (in L1) times MR-high tiles.
+    /// row blocks of MC (A in L2), then NR-wide strips (in L1; pairs of strips with AVX-512)
+    /// times MR-high tiles.
     fn block(&self, mut blk: Block<'_>) {
         let k = self.a.k;
         let width = blk.rows.first().map_or(0, |r| r.len());
@@ -235,33 +309,37 @@ impl NnCtx<'_> {
         }
         let nrows = blk.rows.len();
         debug_assert_eq!(blk.i0 % MR, 0);
-        let mut pack = vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR)];
-        let mut tile = [0.0f32; MR * NR];
+        let mut pack_store = vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK];
+        let pack = aligned_mut(&mut pack_store);
+        let (mut t0, mut t1) = ([0.0f32; MR * NR], [0.0f32; MR * NR]);
+        let step = if self.level == SimdLevel::Avx512 { 2 } else { 1 };
         for jc in (0..width).step_by(NC) {
             let ncw = NC.min(width - jc);
             let nstrips = ncw.div_ceil(NR);
             for k0 in (0..k).step_by(KC) {
                 let kc = KC.min(k - k0);
                 self.pack_b(&mut pack[..nstrips * kc * NR], k0, kc, blk.j0 + jc, ncw);
+                let pack = &*pack;
                 let first = k0 == 0 && !self.accumulate;
                 for ic in (0..nrows).step_by(MC) {
                     let mcw = MC.min(nrows - ic);
-                    for s in 0..nstrips {
+                    for s in (0..nstrips).step_by(step) {
+                        let pair = step == 2 && s + 1 < nstrips;
                         let bp = &pack[s * kc * NR..(s + 1) * kc * NR];
                         let js = jc + s * NR;
                         let nv = NR.min(ncw - s * NR);
                         for r0 in (ic..ic + mcw).step_by(MR) {
                             let mv = MR.min(ic + mcw - r0);
                             let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
-                            self.kernel(mv, kc, ap, bp, &mut tile);
-                            for r in 0..mv {
-                                let dst = &mut blk.rows[r0 + r][js..js + nv];
-                                let src = &tile[r * NR..r * NR + nv];
-                                if first {
-                                    dst.copy_from_slice(src);
-                                } else {
-                                    dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
-                                }
+                            if pair {
+                                let bp1 = &pack[(s + 1) * kc * NR..(s + 2) * kc * NR];
+                                let nv1 = NR.min(ncw - (s + 1) * NR);
+                                self.kernel_pair(mv, kc, ap, bp, bp1, &mut t0, &mut t1);
+                                store_tile(&mut blk.rows, r0, js, mv, nv, &t0, first);
+                                store_tile(&mut blk.rows, r0, js + NR, mv, nv1, &t1, first);
+                            } else {
+                                self.kernel(mv, kc, ap, bp, &mut t0);
+                                store_tile(&mut blk.rows, r0, js, mv, nv, &t0, first);
                             }
                         }
                     }
@@ -270,58 +348,58 @@ impl NnCtx<'_> {
         }
     }
 
-    /// Loop order for few rows of A: NR-wide strips, K blocks, MR-high tiles, with B read in
-    /// place (packing would cost more than the few tiles that reuse it); only the ragged last
-    /// strip goes through a zero-padded copy.
+    /// Loop order for few rows of A: column strips, K blocks, MR-high tiles, with B read in
+    /// place (packing would cost more than the few tiles that reuse it); a ragged last strip
+    /// goes through a zero-padded copy. With AVX-512, 32 columns at a time.
     fn block_direct(&self, mut blk: Block<'_>, width: usize) {
         let k = self.a.k;
         let nrows = blk.rows.len();
         let mut pack = vec![0.0f32; KC.min(k) * NR];
-        let mut tile = [0.0f32; MR * NR];
-        for js in (0..width).step_by(NR) {
+        let (mut t0, mut t1) = ([0.0f32; MR * NR], [0.0f32; MR * NR]);
+        let wide = if self.level == SimdLevel::Avx512 { 2 * NR } else { NR };
+        let mut js = 0;
+        while js < width {
             let j = blk.j0 + js;
-            let nv = NR.min(width - js);
+            let span = if width - js >= wide { wide } else { NR.min(width - js) };
             for k0 in (0..k).step_by(KC) {
                 let kc = KC.min(k - k0);
                 let rows_k = &self.b_rows[k0..k0 + kc];
-                if nv < NR {
+                if span < NR {
                     for (kk, &r) in rows_k.iter().enumerate() {
                         let dst = &mut pack[kk * NR..(kk + 1) * NR];
-                        dst[..nv].copy_from_slice(&self.b[r + j..r + j + nv]);
-                        dst[nv..].fill(0.0);
+                        dst[..span].copy_from_slice(&self.b[r + j..r + j + span]);
+                        dst[span..].fill(0.0);
                     }
                 }
                 let first = k0 == 0 && !self.accumulate;
                 for r0 in (0..nrows).step_by(MR) {
                     let mv = MR.min(nrows - r0);
                     let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
-                    if nv == NR {
-                        self.kernel_rows(mv, kc, ap, rows_k, j, &mut tile);
+                    if span == 2 * NR {
+                        self.kernel_rows_pair(mv, kc, ap, rows_k, j, &mut t0, &mut t1);
+                        store_tile(&mut blk.rows, r0, js, mv, NR, &t0, first);
+                        store_tile(&mut blk.rows, r0, js + NR, mv, NR, &t1, first);
+                    } else if span == NR {
+                        self.kernel_rows(mv, kc, ap, rows_k, j, &mut t0);
+                        store_tile(&mut blk.rows, r0, js, mv, NR, &t0, first);
                     } else {
-                        self.kernel(mv, kc, ap, &pack[..kc * NR], &mut tile);
-                    }
-                    for r in 0..mv {
-                        let dst = &mut blk.rows[r0 + r][js..js + nv];
-                        let src = &tile[r * NR..r * NR + nv];
-                        if first {
-                            dst.copy_from_slice(src);
-                        } else {
-                            dst.iter_mut().zip(src).for_each(|(d, s)| *d += s);
-                        }
+                        self.kernel(mv, kc, ap, &pack[..kc * NR], &mut t0);
+                        store_tile(&mut blk.rows, r0, js, mv, span, &t0, first);
                     }
                 }
             }
+            js += span;
         }
     }
 
-    /// Like [`Self::kernel`] with B read in place: step k reads `b[rows[k] + j..][..NR]`.
+    /// One MR x NR tile with B read in place: step k reads `b[rows[k] + j..][..NR]`.
     fn kernel_rows(&self, mv: usize, kc: usize, a: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
         assert!(a.len() >= kc * MR && rows.len() >= kc && self.max_row + j + NR <= self.b.len());
         #[cfg(target_arch = "x86_64")]
-        if self.simd {
+        if self.level >= SimdLevel::Avx2 {
             let b = self.b;
-            // SAFETY: `simd` is only set when the CPU reports AVX2 and FMA; the assert above
-            // covers every read: A `kc * MR` values, B `rows[k] + j .. + NR` with
+            // SAFETY: the level is at least AVX2 only when the CPU reports AVX2 and FMA; the
+            // assert above covers every read: A `kc * MR` values, B `rows[k] + j .. + NR` with
             // `rows[k] <= max_row`.
             unsafe {
                 match mv {
@@ -338,17 +416,47 @@ impl NnCtx<'_> {
         scalar_kernel_nn_rows(mv, kc, a, self.b, rows, j, out);
     }
 
+    /// Two adjacent MR x NR tiles (columns `j..j + 2 NR`) with B read in place (AVX-512).
+    #[allow(clippy::too_many_arguments)]
+    fn kernel_rows_pair(&self, mv: usize, kc: usize, a: &[f32], rows: &[usize], j: usize, o0: &mut [f32; MR * NR], o1: &mut [f32; MR * NR]) {
+        assert!(a.len() >= kc * MR && rows.len() >= kc && self.max_row + j + 2 * NR <= self.b.len());
+        #[cfg(target_arch = "x86_64")]
+        if self.level == SimdLevel::Avx512 {
+            let b = self.b;
+            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
+            // covers every read (B `rows[k] + j .. + 2 NR`, A `kc * MR`).
+            unsafe {
+                match mv {
+                    1 => avx512::kernel_nn_rows2::<1>(kc, a, b, rows, j, o0, o1),
+                    2 => avx512::kernel_nn_rows2::<2>(kc, a, b, rows, j, o0, o1),
+                    3 => avx512::kernel_nn_rows2::<3>(kc, a, b, rows, j, o0, o1),
+                    4 => avx512::kernel_nn_rows2::<4>(kc, a, b, rows, j, o0, o1),
+                    5 => avx512::kernel_nn_rows2::<5>(kc, a, b, rows, j, o0, o1),
+                    _ => avx512::kernel_nn_rows2::<6>(kc, a, b, rows, j, o0, o1),
+                }
+            }
+            return;
+        }
+        self.kernel_rows(mv, kc, a, rows, j, o0);
+        self.kernel_rows(mv, kc, a, rows, j + NR, o1);
+    }
+
     /// Copies B rows `k0..k0 + kc`, columns `j..j + ncw` into NR-wide strips
     /// (`pack[s][kk][0..NR]`, zero past `ncw`).
     fn pack_b(&self, pack: &mut [f32], k0: usize, kc: usize, j: usize, ncw: usize) {
-        let nstrips = ncw.div_ceil(NR);
+        let full = ncw / NR;
         for kk in 0..kc {
             let r = self.b_rows[k0 + kk] + j;
             let src = &self.b[r..r + ncw];
-            for s in 0..nstrips {
-                let dst = &mut pack[(s * kc + kk) * NR..(s * kc + kk + 1) * NR];
-                let w = NR.min(ncw - s * NR);
-                dst[..w].copy_from_slice(&src[s * NR..s * NR + w]);
+            for (s, chunk) in src.chunks_exact(NR).enumerate() {
+                // Fixed-size copy: a few vector moves, not a memcpy call.
+                let dst: &mut [f32; NR] = (&mut pack[(s * kc + kk) * NR..(s * kc + kk + 1) * NR]).try_into().expect("NR");
+                *dst = *<&[f32; NR]>::try_from(chunk).expect("NR");
+            }
+            let w = ncw - full * NR;
+            if w > 0 {
+                let dst = &mut pack[(full * kc + kk) * NR..(full * kc + kk + 1) * NR];
+                dst[..w].copy_from_slice(&src[full * NR..]);
                 dst[w..].fill(0.0);
             }
         }
@@ -358,9 +466,9 @@ impl NnCtx<'_> {
     fn kernel(&self, mv: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
         assert!(a.len() >= kc * MR && b.len() >= kc * NR);
         #[cfg(target_arch = "x86_64")]
-        if self.simd {
-            // SAFETY: `simd` is only set when the CPU reports AVX2 and FMA; the assert above
-            // covers every read (A: `kc * MR` values, B: `kc * NR` values).
+        if self.level >= SimdLevel::Avx2 {
+            // SAFETY: the level is at least AVX2 only when the CPU reports AVX2 and FMA; the
+            // assert above covers every read (A: `kc * MR` values, B: `kc * NR` values).
             unsafe {
                 match mv {
                     1 => avx2::kernel_nn::<1>(kc, a, b, out),
@@ -374,6 +482,30 @@ impl NnCtx<'_> {
             return;
         }
         scalar_kernel_nn(mv, kc, a, b, out);
+    }
+
+    /// Two MR x NR tiles from two packed B strips (AVX-512).
+    #[allow(clippy::too_many_arguments)]
+    fn kernel_pair(&self, mv: usize, kc: usize, a: &[f32], b0: &[f32], b1: &[f32], o0: &mut [f32; MR * NR], o1: &mut [f32; MR * NR]) {
+        assert!(a.len() >= kc * MR && b0.len() >= kc * NR && b1.len() >= kc * NR);
+        #[cfg(target_arch = "x86_64")]
+        if self.level == SimdLevel::Avx512 {
+            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
+            // covers every read.
+            unsafe {
+                match mv {
+                    1 => avx512::kernel_nn2::<1>(kc, a, b0, b1, o0, o1),
+                    2 => avx512::kernel_nn2::<2>(kc, a, b0, b1, o0, o1),
+                    3 => avx512::kernel_nn2::<3>(kc, a, b0, b1, o0, o1),
+                    4 => avx512::kernel_nn2::<4>(kc, a, b0, b1, o0, o1),
+                    5 => avx512::kernel_nn2::<5>(kc, a, b0, b1, o0, o1),
+                    _ => avx512::kernel_nn2::<6>(kc, a, b0, b1, o0, o1),
+                }
+            }
+            return;
+        }
+        self.kernel(mv, kc, a, b0, o0);
+        self.kernel(mv, kc, a, b1, o1);
     }
 }
 
@@ -426,10 +558,10 @@ pub fn gemm_nt(a: &[f32], a_rows: &[usize], b: &[f32], b_rows: &[usize], kk: usi
     assert!(ldc >= n && c.len() >= (m - 1) * ldc + n, "gemm_nt: C too small");
     assert!(a_rows.iter().all(|&r| r + kk <= a.len()), "gemm_nt: A row out of bounds");
     assert!(b_rows.iter().all(|&r| r + kk <= b.len()), "gemm_nt: B row out of bounds");
-    let simd = simd_active();
+    let level = simd_level();
     let (rows, cols) = grid(m, n, m * n * kk, RT, CT * 4);
     let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
-    let ctx = NtCtx { a, a_rows, b, b_rows, k: kk, accumulate, simd };
+    let ctx = NtCtx { a, a_rows, b, b_rows, k: kk, accumulate, level };
     if blocks.len() == 1 {
         blocks.into_iter().for_each(|blk| ctx.block(blk));
     } else {
@@ -444,7 +576,7 @@ struct NtCtx<'a> {
     b_rows: &'a [usize],
     k: usize,
     accumulate: bool,
-    simd: bool,
+    level: SimdLevel,
 }
 
 impl NtCtx<'_> {
@@ -483,10 +615,35 @@ impl NtCtx<'_> {
     fn kernel(&self, rv: usize, cv: usize, kc: usize, ao: &[usize], bo: &[usize], out: &mut [[f32; CT]; RT]) {
         assert!(ao.iter().all(|&o| o + kc <= self.a.len()) && bo.iter().all(|&o| o + kc <= self.b.len()));
         #[cfg(target_arch = "x86_64")]
-        if self.simd {
+        if self.level == SimdLevel::Avx512 {
             let (a, b) = (self.a, self.b);
-            // SAFETY: `simd` implies AVX2 and FMA; the assert above bounds every row read
-            // (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`), and `ao`/`bo` hold `rv`/`cv` entries.
+            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
+            // bounds every row read (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`), and
+            // `ao`/`bo` hold `rv`/`cv` entries.
+            unsafe {
+                match (rv, cv) {
+                    (4, 3) => avx512::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
+                    (4, 2) => avx512::kernel_nt::<4, 2>(kc, a, ao, b, bo, out),
+                    (4, 1) => avx512::kernel_nt::<4, 1>(kc, a, ao, b, bo, out),
+                    (3, 3) => avx512::kernel_nt::<3, 3>(kc, a, ao, b, bo, out),
+                    (3, 2) => avx512::kernel_nt::<3, 2>(kc, a, ao, b, bo, out),
+                    (3, 1) => avx512::kernel_nt::<3, 1>(kc, a, ao, b, bo, out),
+                    (2, 3) => avx512::kernel_nt::<2, 3>(kc, a, ao, b, bo, out),
+                    (2, 2) => avx512::kernel_nt::<2, 2>(kc, a, ao, b, bo, out),
+                    (2, 1) => avx512::kernel_nt::<2, 1>(kc, a, ao, b, bo, out),
+                    (1, 3) => avx512::kernel_nt::<1, 3>(kc, a, ao, b, bo, out),
+                    (1, 2) => avx512::kernel_nt::<1, 2>(kc, a, ao, b, bo, out),
+                    _ => avx512::kernel_nt::<1, 1>(kc, a, ao, b, bo, out),
+                }
+            }
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if self.level == SimdLevel::Avx2 {
+            let (a, b) = (self.a, self.b);
+            // SAFETY: the level is AVX2 only when the CPU reports AVX2 and FMA; the assert above
+            // bounds every row read (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`), and `ao`/`bo`
+            // hold `rv`/`cv` entries.
             unsafe {
                 match (rv, cv) {
                     (4, 3) => avx2::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
@@ -650,6 +807,141 @@ mod avx2 {
                     s += *pa[r].add(kk) * *pb[c].add(kk);
                 }
                 out[r][c] = s;
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{CT, MR, NR, RT};
+    use std::arch::x86_64::*;
+
+    /// Two tiles: `o0[r][..] = sum_k a[k * MR + r] * b0[k * NR..][..NR]`, `o1` likewise from
+    /// `b1`, for `r < R`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `b0.len() >= kc * NR` and
+    /// `b1.len() >= kc * NR`.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn kernel_nn2<const R: usize>(kc: usize, a: &[f32], b0: &[f32], b1: &[f32], o0: &mut [f32; MR * NR], o1: &mut [f32; MR * NR]) {
+        let mut acc = [[_mm512_setzero_ps(); 2]; R];
+        let mut ap = a.as_ptr();
+        let (mut p0, mut p1) = (b0.as_ptr(), b1.as_ptr());
+        for _ in 0..kc {
+            // SAFETY: `kc` steps of NR values from each strip and MR from A are in bounds.
+            let v0 = _mm512_loadu_ps(p0);
+            let v1 = _mm512_loadu_ps(p1);
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let av = _mm512_set1_ps(*ap.add(r));
+                acc[0] = _mm512_fmadd_ps(av, v0, acc[0]);
+                acc[1] = _mm512_fmadd_ps(av, v1, acc[1]);
+            }
+            ap = ap.add(MR);
+            p0 = p0.add(NR);
+            p1 = p1.add(NR);
+        }
+        for (r, acc) in acc.iter().enumerate() {
+            // SAFETY: `r < R <= MR`; each store writes NR values of row r of a tile.
+            _mm512_storeu_ps(o0.as_mut_ptr().add(r * NR), acc[0]);
+            _mm512_storeu_ps(o1.as_mut_ptr().add(r * NR), acc[1]);
+        }
+    }
+
+    /// Two adjacent tiles with B read in place: step k reads `b[rows[k] + j..][..2 NR]`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `rows.len() >= kc` and
+    /// `rows[k] + j + 2 NR <= b.len()` for every `k < kc`.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn kernel_nn_rows2<const R: usize>(
+        kc: usize,
+        a: &[f32],
+        b: &[f32],
+        rows: &[usize],
+        j: usize,
+        o0: &mut [f32; MR * NR],
+        o1: &mut [f32; MR * NR],
+    ) {
+        let mut acc = [[_mm512_setzero_ps(); 2]; R];
+        let mut ap = a.as_ptr();
+        let bp = b.as_ptr().add(j);
+        for &row in &rows[..kc] {
+            // SAFETY: `row + j + 2 NR <= b.len()` and `kc * MR <= a.len()` by the contract.
+            let p = bp.add(row);
+            let v0 = _mm512_loadu_ps(p);
+            let v1 = _mm512_loadu_ps(p.add(NR));
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let av = _mm512_set1_ps(*ap.add(r));
+                acc[0] = _mm512_fmadd_ps(av, v0, acc[0]);
+                acc[1] = _mm512_fmadd_ps(av, v1, acc[1]);
+            }
+            ap = ap.add(MR);
+        }
+        for (r, acc) in acc.iter().enumerate() {
+            // SAFETY: `r < R <= MR`; each store writes NR values of row r of a tile.
+            _mm512_storeu_ps(o0.as_mut_ptr().add(r * NR), acc[0]);
+            _mm512_storeu_ps(o1.as_mut_ptr().add(r * NR), acc[1]);
+        }
+    }
+
+    /// `out[r][c] = sum_{k < kc} a[ao[r] + k] * b[bo[c] + k]` for `r < R`, `c < C`, 16 k at a
+    /// time with a masked last step.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F; `ao.len() >= R`, `bo.len() >= C`,
+    /// `ao[r] + kc <= a.len()` and `bo[c] + kc <= b.len()`.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn kernel_nt<const R: usize, const C: usize>(
+        kc: usize,
+        a: &[f32],
+        ao: &[usize],
+        b: &[f32],
+        bo: &[usize],
+        out: &mut [[f32; CT]; RT],
+    ) {
+        let mut acc = [[_mm512_setzero_ps(); C]; R];
+        let mut pa = [a.as_ptr(); R];
+        let mut pb = [b.as_ptr(); C];
+        for r in 0..R {
+            pa[r] = a.as_ptr().add(ao[r]);
+        }
+        for c in 0..C {
+            pb[c] = b.as_ptr().add(bo[c]);
+        }
+        let k16 = kc / 16 * 16;
+        let mut k = 0;
+        while k < k16 {
+            // SAFETY: `k + 16 <= kc`; every row has `kc` readable values by the contract.
+            let mut av = [_mm512_setzero_ps(); R];
+            for r in 0..R {
+                av[r] = _mm512_loadu_ps(pa[r].add(k));
+            }
+            for c in 0..C {
+                let bv = _mm512_loadu_ps(pb[c].add(k));
+                for r in 0..R {
+                    acc[r][c] = _mm512_fmadd_ps(av[r], bv, acc[r][c]);
+                }
+            }
+            k += 16;
+        }
+        if k < kc {
+            // SAFETY: masked-off lanes are not read, so only `k..kc` is touched.
+            let mask: __mmask16 = ((1u32 << (kc - k)) - 1) as __mmask16;
+            let mut av = [_mm512_setzero_ps(); R];
+            for r in 0..R {
+                av[r] = _mm512_maskz_loadu_ps(mask, pa[r].add(k));
+            }
+            for c in 0..C {
+                let bv = _mm512_maskz_loadu_ps(mask, pb[c].add(k));
+                for r in 0..R {
+                    acc[r][c] = _mm512_fmadd_ps(av[r], bv, acc[r][c]);
+                }
+            }
+        }
+        for r in 0..R {
+            for c in 0..C {
+                out[r][c] = _mm512_reduce_add_ps(acc[r][c]);
             }
         }
     }

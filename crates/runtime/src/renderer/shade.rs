@@ -110,8 +110,8 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                 let tp = |k: usize, i: usize| t.data[k * n + i];
                 image.data.par_chunks_mut(4).enumerate().for_each(|(i, px)| {
                     if own.owner[i] == id {
-                        for k in 0..3 {
-                            px[k] = unit(tp(k, i));
+                        for (k, v) in px[..3].iter_mut().enumerate() {
+                            *v = unit(tp(k, i));
                         }
                         px[3] = if four { unit(tp(3, i)) } else { 1.0 };
                     }
@@ -122,8 +122,8 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                     q.par_iter_mut().zip(a.par_iter_mut()).enumerate().for_each(|(i, (q, a))| {
                         if own.owner[i] == BACKGROUND {
                             let alpha = unit(tp(3, i));
-                            for k in 0..3 {
-                                q[k] = alpha * unit(tp(k, i)) + (1.0 - alpha) * q[k];
+                            for (k, v) in q.iter_mut().enumerate() {
+                                *v = alpha * unit(tp(k, i)) + (1.0 - alpha) * *v;
                             }
                             *a = alpha + (1.0 - alpha) * *a;
                         }

@@ -111,7 +111,7 @@ pub fn f64s(v: &[f32]) -> Vec<f64> {
 /// gemm_nn against a naive product over odd shapes.
 pub fn check_gemm_nn(seed: u64) {
     let mut r = rng(seed);
-    for &(m, n, k) in &[(1, 1, 1), (5, 17, 3), (6, 16, 7), (7, 33, 257), (13, 100, 300), (3, 1000, 64), (40, 301, 129)] {
+    for &(m, n, k) in &[(1, 1, 1), (5, 17, 3), (6, 16, 7), (7, 33, 257), (13, 100, 300), (3, 1000, 64), (40, 301, 129), (70, 301, 300), (131, 47, 513)] {
         // B rows at scattered offsets (with gaps) into one buffer.
         let pitch = n + 5;
         let b = randv(&mut r, k * pitch + 11);

@@ -1,0 +1,169 @@
+//! U-Net training-step and inference benchmarks (what `dnr bench train` / `dnr bench render`
+//! print): min-of-reps wall time, conv FLOPs per step and the achieved rate as a fraction of an
+//! sgemm peak measured in the same run with the same GEMM.
+
+use crate::kernels::adam::{Adam, AdamConfig};
+use crate::kernels::loss::l1_loss;
+use crate::kernels::unet::UNetTrain;
+use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
+use dnr_runtime::nn::gemm::{gemm_nn, PackedA};
+use dnr_runtime::nn::Tensor;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::fmt;
+use std::time::Instant;
+
+/// The CPU-sized U-Net widths.
+pub const CPU_WIDTHS: [usize; 5] = [16, 32, 64, 128, 128];
+/// The paper's U-Net widths.
+pub const PAPER_WIDTHS: [usize; 5] = [64, 128, 256, 512, 512];
+
+/// Minimum and median of `reps` timed runs of `f` (after one warm-up), in seconds.
+pub fn time_min_median(reps: usize, mut f: impl FnMut()) -> (f64, f64) {
+    f();
+    let mut t: Vec<f64> = (0..reps.max(1))
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64()
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    (t[0], t[t.len() / 2])
+}
+
+/// GFLOP/s of a square 1024 sgemm with [`gemm_nn`] (best of `reps`).
+pub fn sgemm_peak_gflops(reps: usize) -> f64 {
+    let n = 1024;
+    let mut r = ChaCha8Rng::seed_from_u64(1);
+    let a: Vec<f32> = (0..n * n).map(|_| r.random_range(-1.0..1.0)).collect();
+    let b: Vec<f32> = (0..n * n).map(|_| r.random_range(-1.0..1.0)).collect();
+    let mut c = vec![0.0f32; n * n];
+    let pa = PackedA::new(n, n, &a, n, 1);
+    let rows: Vec<usize> = (0..n).map(|k| k * n).collect();
+    let (t, _) = time_min_median(reps, || gemm_nn(&pa, &b, &rows, n, &mut c, n, false));
+    2.0 * (n * n * n) as f64 / t * 1e-9
+}
+
+/// U-Net parameters of the benchmarks: 16 input channels, 3 outputs, transposed-conv decoder,
+/// instance norm.
+pub fn bench_params(widths: &[usize]) -> UNetParams {
+    UNetParams { in_ch: 16, out_ch: 3, widths: widths.to_vec(), decoder: Decoder::TransposedConv, norm: Norm::Instance }
+}
+
+fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
+    Tensor::from_vec(c, h, w, (0..c * h * w).map(|_| r.random_range(-1.0f32..1.0)).collect()).expect("sized")
+}
+
+/// One measured configuration.
+#[derive(Clone, Debug)]
+pub struct BenchRow {
+    /// "train" or "infer".
+    pub kind: &'static str,
+    /// U-Net widths.
+    pub widths: Vec<usize>,
+    /// Square image size.
+    pub size: usize,
+    /// Best time in ms.
+    pub ms_min: f64,
+    /// Median time in ms.
+    pub ms_median: f64,
+    /// Conv GFLOP per step (training: forward + input gradient + weight gradient = 3x forward).
+    pub gflop: f64,
+}
+
+impl BenchRow {
+    /// Achieved GFLOP/s at the best time.
+    pub fn gflops(&self) -> f64 {
+        self.gflop / (self.ms_min * 1e-3)
+    }
+}
+
+/// Training step (zero grads, forward, L1 loss, backward, Adam on every tensor) on a random
+/// `16 x size x size` feature image; the texture update is not included.
+pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
+    let p = bench_params(widths);
+    let mut net = UNetTrain::init(p.clone(), 1).expect("valid params");
+    let mut opts: Vec<Adam> = net.weights.iter().map(|w| Adam::new(w.len(), AdamConfig::default())).collect();
+    let mut r = ChaCha8Rng::seed_from_u64(2);
+    let x = random_tensor(&mut r, 16, size, size);
+    let target = random_tensor(&mut r, 3, size, size);
+    let mut dy = Tensor::zeros(3, size, size);
+    let (t_min, t_med) = time_min_median(reps, || {
+        net.zero_grad();
+        let (y, acts) = net.forward(&x).expect("shapes");
+        dy.data.fill(0.0);
+        l1_loss(&y, &target, None, 1.0, &mut dy);
+        let dx = net.backward(&acts, &dy);
+        std::hint::black_box(dx);
+        for ((w, g), o) in net.weights.iter_mut().zip(&net.grads).zip(&mut opts) {
+            o.step(w, g);
+        }
+    });
+    BenchRow { kind: "train", widths: widths.to_vec(), size, ms_min: t_min * 1e3, ms_median: t_med * 1e3, gflop: 3.0 * p.flops(size, size) as f64 * 1e-9 }
+}
+
+/// Inference (runtime `UNet::forward`) on a random `16 x size x size` feature image.
+pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
+    let p = bench_params(widths);
+    let net = UNetTrain::init(p.clone(), 1).expect("valid params");
+    let unet = UNet::from_map(p.clone(), &net.to_map()).expect("own weights");
+    let mut r = ChaCha8Rng::seed_from_u64(3);
+    let x = random_tensor(&mut r, 16, size, size);
+    let (t_min, t_med) = time_min_median(reps, || {
+        std::hint::black_box(unet.forward(&x).expect("shapes"));
+    });
+    BenchRow { kind: "infer", widths: widths.to_vec(), size, ms_min: t_min * 1e3, ms_median: t_med * 1e3, gflop: p.flops(size, size) as f64 * 1e-9 }
+}
+
+/// A full benchmark run.
+#[derive(Clone, Debug)]
+pub struct BenchReport {
+    /// sgemm 1024 GFLOP/s measured in this run.
+    pub peak_gflops: f64,
+    /// Whether the SIMD kernels were used.
+    pub simd: bool,
+    /// Worker threads.
+    pub threads: usize,
+    /// Measurements.
+    pub rows: Vec<BenchRow>,
+}
+
+/// Runs the standard table: training at 128 and 256, inference at 256 and 512, for the
+/// CPU-sized and the paper U-Net. `reps` timed repetitions each (min reported).
+pub fn run_standard(reps: usize) -> BenchReport {
+    let peak = sgemm_peak_gflops(reps.max(3));
+    let mut rows = Vec::new();
+    for widths in [&CPU_WIDTHS[..], &PAPER_WIDTHS[..]] {
+        for size in [128, 256] {
+            rows.push(bench_train(widths, size, reps));
+        }
+        for size in [256, 512] {
+            rows.push(bench_infer(widths, size, reps));
+        }
+    }
+    BenchReport { peak_gflops: peak, simd: dnr_runtime::nn::gemm::simd_active(), threads: rayon::current_num_threads(), rows }
+}
+
+impl fmt::Display for BenchReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; simd {}; {} threads", self.peak_gflops, self.simd, self.threads)?;
+        writeln!(f, "| kind | widths | size | ms (min) | ms (median) | conv GFLOP | GFLOP/s | of peak |")?;
+        writeln!(f, "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")?;
+        for r in &self.rows {
+            writeln!(
+                f,
+                "| {} | {:?} | {} | {:.1} | {:.1} | {:.3} | {:.1} | {:.0}% |",
+                r.kind,
+                r.widths,
+                r.size,
+                r.ms_min,
+                r.ms_median,
+                r.gflop,
+                r.gflops(),
+                100.0 * r.gflops() / self.peak_gflops
+            )?;
+        }
+        Ok(())
+    }
+}
