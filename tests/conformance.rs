@@ -41,10 +41,16 @@ fn samples_on_disk_equal_generator_output() {
     let have: BTreeSet<PathBuf> = files_under(&samples_dir())
         .into_iter()
         .filter(|p| {
-            p.starts_with("valid") || p.starts_with("invalid") || p == Path::new("README.md") || p == Path::new("expected.json")
+            p.starts_with("valid")
+                || p.starts_with("invalid")
+                || p == Path::new("README.md")
+                || p == Path::new("expected.json")
         })
         .collect();
-    assert_eq!(have, want, "file lists differ: rerun `cargo run -p dnr-format --example make_samples -- samples`");
+    assert_eq!(
+        have, want,
+        "file lists differ: rerun `cargo run -p dnr-format --example make_samples -- samples`"
+    );
     for f in &want {
         let a = fs::read(tmp.path().join(f)).unwrap();
         let b = fs::read(samples_dir().join(f)).unwrap();
@@ -54,7 +60,10 @@ fn samples_on_disk_equal_generator_output() {
     let tmp2 = tempfile::tempdir().unwrap();
     make_samples::generate(tmp2.path()).unwrap();
     for f in &want {
-        assert_eq!(fs::read(tmp.path().join(f)).unwrap(), fs::read(tmp2.path().join(f)).unwrap());
+        assert_eq!(
+            fs::read(tmp.path().join(f)).unwrap(),
+            fs::read(tmp2.path().join(f)).unwrap()
+        );
     }
     assert!(generated.len() >= 40);
 }
@@ -80,14 +89,22 @@ fn expected_json_lists_every_sample() {
 fn rewrite(c: &Container, original: &Path, into: &Path) -> (Vec<u8>, Option<Vec<u8>>) {
     let name = original.file_name().unwrap();
     let is_gltf = original.extension().is_some_and(|e| e == "gltf");
-    let external = is_gltf && c.root.buffers.iter().any(|b| b.uri.as_deref().is_some_and(|u| !u.starts_with("data:")));
+    let external = is_gltf
+        && c.root
+            .buffers
+            .iter()
+            .any(|b| b.uri.as_deref().is_some_and(|u| !u.starts_with("data:")));
     let out = into.join(name);
     if external {
         c.write_gltf_external(&out).unwrap();
         let bin = out.with_extension("bin");
         (fs::read(&out).unwrap(), Some(fs::read(bin).unwrap()))
     } else {
-        let bytes = if is_gltf { c.to_gltf_embedded().unwrap() } else { c.to_glb().unwrap() };
+        let bytes = if is_gltf {
+            c.to_gltf_embedded().unwrap()
+        } else {
+            c.to_glb().unwrap()
+        };
         fs::write(&out, &bytes).unwrap();
         (bytes, None)
     }
@@ -128,7 +145,10 @@ fn valid_samples_are_clean_and_round_trip() {
         for (t, j) in asset.textures.iter().zip(&ext.neural_textures) {
             assert_eq!(t.levels.len(), j.levels.len());
             for (l, lj) in t.levels.iter().zip(&j.levels) {
-                assert_eq!((l.width, l.height, l.channels), (lj.width, lj.height, j.channels));
+                assert_eq!(
+                    (l.width, l.height, l.channels),
+                    (lj.width, lj.height, j.channels)
+                );
                 assert_eq!(l.data.len(), (l.width * l.height * l.channels) as usize);
                 assert!(l.data.iter().all(|v| v.is_finite()));
             }
@@ -166,12 +186,24 @@ fn invalid_samples_give_expected_codes_without_panicking() {
             .unwrap_or_else(|_| panic!("{file}: the validator panicked"));
         assert_eq!(report.codes(), want, "{file}: {:#?}", report.issues);
         for i in &report.issues {
-            assert!(i.pointer.is_empty() || i.pointer.starts_with('/'), "{file}: pointer {}", i.pointer);
+            assert!(
+                i.pointer.is_empty() || i.pointer.starts_with('/'),
+                "{file}: pointer {}",
+                i.pointer
+            );
         }
         // The reader must refuse what the validator calls an error.
-        let has_error = want.iter().any(|c| code_info(c).unwrap().severity == Severity::Error);
-        let read = catch_unwind(|| read_asset(&path)).unwrap_or_else(|_| panic!("{file}: read_asset panicked"));
-        assert_eq!(read.is_err(), has_error, "{file}: read_asset gave {:?}", read.as_ref().err());
+        let has_error = want
+            .iter()
+            .any(|c| code_info(c).unwrap().severity == Severity::Error);
+        let read = catch_unwind(|| read_asset(&path))
+            .unwrap_or_else(|_| panic!("{file}: read_asset panicked"));
+        assert_eq!(
+            read.is_err(),
+            has_error,
+            "{file}: read_asset gave {:?}",
+            read.as_ref().err()
+        );
         if let Err(e) = read {
             let msg = e.to_string();
             assert!(
@@ -191,13 +223,32 @@ fn cli_validate_exit_codes_and_json() {
         let has_error = codes
             .iter()
             .any(|c| code_info(c).unwrap().severity == Severity::Error);
-        let out = Command::new(exe).arg("validate").arg(&path).output().unwrap();
-        assert_eq!(out.status.code(), Some(if has_error { 1 } else { 0 }), "{file}");
+        let out = Command::new(exe)
+            .arg("validate")
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert_eq!(
+            out.status.code(),
+            Some(if has_error { 1 } else { 0 }),
+            "{file}"
+        );
         let text = String::from_utf8_lossy(&out.stdout);
-        assert!(text.contains(path.file_name().unwrap().to_str().unwrap()), "{file}: {text}");
+        assert!(
+            text.contains(path.file_name().unwrap().to_str().unwrap()),
+            "{file}: {text}"
+        );
 
-        let out = Command::new(exe).args(["validate", "--json"]).arg(&path).output().unwrap();
-        assert_eq!(out.status.code(), Some(if has_error { 1 } else { 0 }), "{file}");
+        let out = Command::new(exe)
+            .args(["validate", "--json"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert_eq!(
+            out.status.code(),
+            Some(if has_error { 1 } else { 0 }),
+            "{file}"
+        );
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         assert_eq!(v["valid"], serde_json::json!(!has_error), "{file}");
         let got: BTreeSet<String> = v["issues"]
@@ -206,9 +257,16 @@ fn cli_validate_exit_codes_and_json() {
             .iter()
             .map(|i| i["code"].as_str().unwrap().to_string())
             .collect();
-        assert_eq!(got, codes.iter().cloned().collect::<BTreeSet<_>>(), "{file}");
+        assert_eq!(
+            got,
+            codes.iter().cloned().collect::<BTreeSet<_>>(),
+            "{file}"
+        );
     }
-    let missing = Command::new(exe).args(["validate", "no/such/file.glb"]).output().unwrap();
+    let missing = Command::new(exe)
+        .args(["validate", "no/such/file.glb"])
+        .output()
+        .unwrap();
     assert_eq!(missing.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("no/such/file.glb"));
 }
@@ -217,12 +275,23 @@ fn cli_validate_exit_codes_and_json() {
 fn cli_inspect_reports_every_part() {
     let exe = dnr_exe();
     let path = samples_dir().join("valid/scene_multi_primitive.glb");
-    let out = Command::new(exe).args(["inspect", "--json"]).arg(&path).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = Command::new(exe)
+        .args(["inspect", "--json"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["neural_textures"].as_array().unwrap().len(), 2);
     assert_eq!(v["neural_textures"][1]["channels"], 19);
-    assert!(v["neural_textures"][1]["view_dependence"].as_str().unwrap().contains("degree 3"));
+    assert!(v["neural_textures"][1]["view_dependence"]
+        .as_str()
+        .unwrap()
+        .contains("degree 3"));
     assert_eq!(v["renderers"][1]["architecture"], "mlp");
     // mlp 19 -> [6] -> 4: 19*6 + 6 + 6*4 + 4 parameters.
     assert_eq!(v["renderers"][1]["parameter_count"], 19 * 6 + 6 + 6 * 4 + 4);
@@ -231,7 +300,11 @@ fn cli_inspect_reports_every_part() {
         assert!(b[part].as_u64().unwrap() > 0, "{part}");
     }
     assert_eq!(b["other_buffer_views"], 0);
-    let text = Command::new(exe).arg("inspect").arg(&path).output().unwrap();
+    let text = Command::new(exe)
+        .arg("inspect")
+        .arg(&path)
+        .output()
+        .unwrap();
     assert!(text.status.success());
     assert!(String::from_utf8_lossy(&text.stdout).contains("level 1"));
 }

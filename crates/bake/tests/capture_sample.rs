@@ -43,7 +43,7 @@ fn sample_capture_loads() {
         if v.y.abs() < 0.999 {
             let u = (-v.z).atan2(v.x) / tau;
             let du = (uv.x - u).rem_euclid(1.0);
-            assert!(du < 1e-5 || du > 1.0 - 1e-5, "{v} {uv}");
+            assert!(!(1e-5..=1.0 - 1e-5).contains(&du), "{v} {uv}");
         }
     }
     // Triangles wind counter-clockwise seen from outside.

@@ -586,3 +586,17 @@ fn training_is_deterministic_across_runs_and_thread_counts() {
     assert_eq!(bits(&a), bits(&c), "1 vs 2 threads");
     assert_ne!(bits(&a), bits(&rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| train_three_steps(4))));
 }
+
+#[test]
+fn training_forward_is_the_runtime_forward() {
+    // What is trained is what the runtime draws: identical bits for both decoders.
+    for decoder in [Decoder::TransposedConv, Decoder::UpsampleConv] {
+        let p = UNetParams { in_ch: 6, out_ch: 4, widths: vec![4, 8, 8], decoder, norm: Norm::Instance };
+        let net = UNetTrain::init(p.clone(), 5).unwrap();
+        let runtime = dnr_runtime::network::unet::UNet::from_map(p, &net.to_map()).unwrap();
+        let x = randt(&mut rng(50), 6, 21, 19);
+        let (y, _) = net.forward(&x).unwrap();
+        let yr = runtime.forward(&x).unwrap();
+        assert_eq!(y.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), yr.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+    }
+}

@@ -21,6 +21,11 @@ enum Command {
     Validate(cmd::validate::Args),
     /// Summarise an asset: textures, renderers, parameter counts, bytes by part.
     Inspect(cmd::inspect::Args),
+    // --- render / eval (renderer engineer) ---
+    /// Render an asset with the CPU runtime: the views of a capture, or one look-at view.
+    Render(cmd::render::Args),
+    /// Evaluate an asset against a capture's held-out photographs (PSNR, SSIM, MSE).
+    Eval(cmd::eval::Args),
 }
 
 fn main() -> ExitCode {
@@ -28,6 +33,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Validate(args) => cmd::validate::run(&args),
         Command::Inspect(args) => cmd::inspect::run(&args),
+        // --- render / eval (renderer engineer) ---
+        Command::Render(args) => cmd::render::run(&args),
+        Command::Eval(args) => cmd::eval::run(&args),
     };
     match result {
         Ok(code) => code,

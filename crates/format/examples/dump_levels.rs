@@ -21,7 +21,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for (ti, t) in ext.neural_textures.iter().enumerate() {
         for (li, l) in t.levels.iter().enumerate() {
             let bytes = c.view_bytes(l.buffer_view)?;
-            let expect = LevelExpect { width: l.width, height: l.height, channels: t.channels };
+            let expect = LevelExpect {
+                width: l.width,
+                height: l.height,
+                channels: t.channels,
+            };
             let halves = decode_level_halves(bytes, expect, &limits).map_err(|p| p.error)?;
             levels.push(json!({
                 "texture": ti,

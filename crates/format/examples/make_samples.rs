@@ -12,7 +12,7 @@ use std::path::Path;
 
 use dnr_format::container::{glb_bytes, parse_glb};
 use dnr_format::exr_codec::{channel_name, encode_level};
-use dnr_format::model::{Decoder, DType, Normalization, Renderer, ViewDependence};
+use dnr_format::model::{DType, Decoder, Normalization, Renderer, ViewDependence};
 use dnr_format::{
     architecture_tensors, AssetBuilder, Container, LevelCompression, Limits, MaterialDesc,
     NeuralTextureDesc, Node, Primitive, RendererDesc, TensorF32, TextureLevel, WrapMode,
@@ -36,7 +36,9 @@ pub struct Sample {
 
 #[allow(dead_code)]
 fn main() -> Res<()> {
-    let out = std::env::args().nth(1).unwrap_or_else(|| "samples".to_string());
+    let out = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "samples".to_string());
     let samples = generate(Path::new(&out))?;
     println!("wrote {} samples to {out}", samples.len());
     Ok(())
@@ -60,7 +62,12 @@ fn quad(size: f32, z: f32, material: usize) -> Primitive {
 /// A tetrahedron-like open pyramid without normals (normals are optional).
 fn pyramid(material: usize) -> Primitive {
     Primitive {
-        positions: vec![[0.0, 0.0, 0.5], [-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0]],
+        positions: vec![
+            [0.0, 0.0, 0.5],
+            [-0.5, -0.5, 0.0],
+            [0.5, -0.5, 0.0],
+            [0.0, 0.5, 0.0],
+        ],
         normals: None,
         tex_coords: vec![[0.5, 0.5], [0.0, 1.0], [1.0, 1.0], [0.5, 0.0]],
         indices: vec![0, 1, 2, 0, 2, 3, 0, 3, 1],
@@ -79,7 +86,12 @@ fn levels(rng: &mut ChaCha8Rng, w: u32, h: u32, channels: u32, count: usize) -> 
         let data = (0..n)
             .map(|_| (rng.random::<f32>() * 1.2 - 0.1) * scale)
             .collect();
-        out.push(TextureLevel { width: w, height: h, channels, data });
+        out.push(TextureLevel {
+            width: w,
+            height: h,
+            channels,
+            data,
+        });
         w = w.div_ceil(2);
         h = h.div_ceil(2);
     }
@@ -90,9 +102,16 @@ fn tensors(rng: &mut ChaCha8Rng, r: &Renderer) -> Res<BTreeMap<String, TensorF32
     let mut out = BTreeMap::new();
     for (name, shape) in architecture_tensors(r)? {
         let n: usize = shape.iter().map(|&d| d as usize).product();
-        let fan_in: usize = shape.iter().skip(1).map(|&d| d as usize).product::<usize>().max(1);
+        let fan_in: usize = shape
+            .iter()
+            .skip(1)
+            .map(|&d| d as usize)
+            .product::<usize>()
+            .max(1);
         let s = 1.0 / (fan_in as f32).sqrt();
-        let data = (0..n).map(|_| (rng.random::<f32>() * 2.0 - 1.0) * s).collect();
+        let data = (0..n)
+            .map(|_| (rng.random::<f32>() * 2.0 - 1.0) * s)
+            .collect();
         out.insert(name, TensorF32::new(shape, data)?);
     }
     Ok(out)
@@ -121,10 +140,22 @@ fn single(seed: u64, o: One) -> Res<Container> {
         compression: o.compression,
     });
     let tensors = tensors(&mut rng, &o.renderer)?;
-    let r = b.add_renderer(RendererDesc { renderer: o.renderer, tensors, dtype: o.dtype });
-    let m = b.add_material(MaterialDesc { name: Some("neural".into()), neural_texture: t, renderer: r });
+    let r = b.add_renderer(RendererDesc {
+        renderer: o.renderer,
+        tensors,
+        dtype: o.dtype,
+    });
+    let m = b.add_material(MaterialDesc {
+        name: Some("neural".into()),
+        neural_texture: t,
+        renderer: r,
+    });
     let mesh = b.add_mesh(Some("quad".into()), vec![quad(1.0, 0.0, m)]);
-    b.add_node(Node { name: Some("quad".into()), mesh: Some(mesh), ..Node::default() });
+    b.add_node(Node {
+        name: Some("quad".into()),
+        mesh: Some(mesh),
+        ..Node::default()
+    });
     Ok(b.build_container()?)
 }
 
@@ -167,12 +198,31 @@ fn scene(seed: u64) -> Res<Container> {
         compression: LevelCompression::Piz,
     });
     let r0 = Renderer::new(dnr_format::model::Architecture::None, 4, 3);
-    let r0 = b.add_renderer(RendererDesc { tensors: tensors(&mut rng, &r0)?, renderer: r0, dtype: DType::F16 });
+    let r0 = b.add_renderer(RendererDesc {
+        tensors: tensors(&mut rng, &r0)?,
+        renderer: r0,
+        dtype: DType::F16,
+    });
     let r1 = Renderer::mlp(19, 4, vec![6]);
-    let r1 = b.add_renderer(RendererDesc { tensors: tensors(&mut rng, &r1)?, renderer: r1, dtype: DType::F32 });
-    let m0 = b.add_material(MaterialDesc { name: Some("plain".into()), neural_texture: t0, renderer: r0 });
-    let m1 = b.add_material(MaterialDesc { name: Some("view-dependent".into()), neural_texture: t1, renderer: r1 });
-    let two = b.add_mesh(Some("two-primitives".into()), vec![quad(1.0, 0.0, m0), quad(0.5, 0.25, m1)]);
+    let r1 = b.add_renderer(RendererDesc {
+        tensors: tensors(&mut rng, &r1)?,
+        renderer: r1,
+        dtype: DType::F32,
+    });
+    let m0 = b.add_material(MaterialDesc {
+        name: Some("plain".into()),
+        neural_texture: t0,
+        renderer: r0,
+    });
+    let m1 = b.add_material(MaterialDesc {
+        name: Some("view-dependent".into()),
+        neural_texture: t1,
+        renderer: r1,
+    });
+    let two = b.add_mesh(
+        Some("two-primitives".into()),
+        vec![quad(1.0, 0.0, m0), quad(0.5, 0.25, m1)],
+    );
     let pyr = b.add_mesh(Some("pyramid".into()), vec![pyramid(m1)]);
     let child = b.add_node(Node {
         name: Some("child".into()),
@@ -239,24 +289,46 @@ fn weight_range(v: &Value, w: usize) -> (usize, usize) {
     let d = &v["extensions"][EXTENSION_NAME]["renderers"][0]["weights"][w];
     let view = &v["bufferViews"][as_usize(&d["bufferView"])];
     let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
-    let n: usize = d["shape"].as_array().map_or(0, |s| s.iter().map(as_usize).product());
+    let n: usize = d["shape"]
+        .as_array()
+        .map_or(0, |s| s.iter().map(as_usize).product());
     let size = if d["dtype"] == "f16" { 2 } else { 4 };
     (start, start + n * size)
 }
 
 /// An EXR level written with the `exr` crate directly, bypassing our encoder's checks.
-fn raw_exr(w: usize, h: usize, channels: u32, compression: exr::compression::Compression, poison: bool) -> Res<Vec<u8>> {
+fn raw_exr(
+    w: usize,
+    h: usize,
+    channels: u32,
+    compression: exr::compression::Compression,
+    poison: bool,
+) -> Res<Vec<u8>> {
     use exr::prelude::*;
     let mut list = SmallVec::<[AnyChannel<FlatSamples>; 4]>::new();
     for c in 0..channels {
-        let mut plane: Vec<f16> = (0..w * h).map(|i| f16::from_f32(((i as u32 + c) % 7) as f32 * 0.1)).collect();
+        let mut plane: Vec<f16> = (0..w * h)
+            .map(|i| f16::from_f32(((i as u32 + c) % 7) as f32 * 0.1))
+            .collect();
         if poison && c == 0 {
             plane[w * h / 2] = f16::NAN;
         }
-        list.push(AnyChannel::new(channel_name(c, channels).as_str(), FlatSamples::F16(plane)));
+        list.push(AnyChannel::new(
+            channel_name(c, channels).as_str(),
+            FlatSamples::F16(plane),
+        ));
     }
-    let enc = Encoding { compression, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
-    let image = Image::from_layer(Layer::new((w, h), LayerAttributes::default(), enc, AnyChannels::sort(list)));
+    let enc = Encoding {
+        compression,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
+    let image = Image::from_layer(Layer::new(
+        (w, h),
+        LayerAttributes::default(),
+        enc,
+        AnyChannels::sort(list),
+    ));
     let mut out = std::io::Cursor::new(Vec::new());
     image.write().non_parallel().to_buffered(&mut out)?;
     Ok(out.into_inner())
@@ -270,7 +342,13 @@ struct Writer<'a> {
 }
 
 impl Writer<'_> {
-    fn put(&mut self, path: &str, bytes: &[u8], description: &str, expected: &[&'static str]) -> Res<()> {
+    fn put(
+        &mut self,
+        path: &str,
+        bytes: &[u8],
+        description: &str,
+        expected: &[&'static str],
+    ) -> Res<()> {
         let full = self.dir.join(path);
         if let Some(parent) = full.parent() {
             fs::create_dir_all(parent)?;
@@ -287,78 +365,135 @@ impl Writer<'_> {
 
 /// Writes every sample, `README.md` and `expected.json` under `dir`; returns the list.
 pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
-    let mut w = Writer { dir, samples: Vec::new() };
+    let mut w = Writer {
+        dir,
+        samples: Vec::new(),
+    };
     use dnr_format::model::Architecture as A;
     use LevelCompression as LC;
     use WrapMode as WM;
 
     // ---- valid
-    let none = single(1, One {
-        levels: 1,
-        size: (8, 8),
-        compression: LC::None,
-        ..one(3, Renderer::new(A::None, 3, 3))
-    })?;
-    w.put("valid/none_1level.glb", &glb(&none)?, "architecture none, 3 channels, 1 level 8x8, REPEAT, EXR NONE", &[])?;
+    let none = single(
+        1,
+        One {
+            levels: 1,
+            size: (8, 8),
+            compression: LC::None,
+            ..one(3, Renderer::new(A::None, 3, 3))
+        },
+    )?;
+    w.put(
+        "valid/none_1level.glb",
+        &glb(&none)?,
+        "architecture none, 3 channels, 1 level 8x8, REPEAT, EXR NONE",
+        &[],
+    )?;
 
-    let none_sh = single(2, One {
-        levels: 2,
-        size: (13, 11),
-        wrap: (WM::ClampToEdge, WM::ClampToEdge),
-        sh: Some(ViewDependence::spherical_harmonics(1, 3)),
-        compression: LC::Rle,
-        ..one(7, Renderer::new(A::None, 7, 4))
-    })?;
+    let none_sh = single(
+        2,
+        One {
+            levels: 2,
+            size: (13, 11),
+            wrap: (WM::ClampToEdge, WM::ClampToEdge),
+            sh: Some(ViewDependence::spherical_harmonics(1, 3)),
+            compression: LC::Rle,
+            ..one(7, Renderer::new(A::None, 7, 4))
+        },
+    )?;
     w.put("valid/none_sh1_clamp.glb", &glb(&none_sh)?, "none with 4 output channels, SH degree 1 on channels 3..7, 2 odd-sized levels 13x11, CLAMP_TO_EDGE, EXR RLE", &[])?;
 
-    let mlp16 = single(3, One {
-        wrap: (WM::MirroredRepeat, WM::MirroredRepeat),
-        compression: LC::Zips,
-        ..one(6, Renderer::mlp(6, 3, vec![8]))
-    })?;
-    w.put("valid/mlp_f16_2levels.glb", &glb(&mlp16)?, "mlp hidden [8], 6 channels, 2 levels 8x8, f16 weights, MIRRORED_REPEAT, EXR ZIPS", &[])?;
+    let mlp16 = single(
+        3,
+        One {
+            wrap: (WM::MirroredRepeat, WM::MirroredRepeat),
+            compression: LC::Zips,
+            ..one(6, Renderer::mlp(6, 3, vec![8]))
+        },
+    )?;
+    w.put(
+        "valid/mlp_f16_2levels.glb",
+        &glb(&mlp16)?,
+        "mlp hidden [8], 6 channels, 2 levels 8x8, f16 weights, MIRRORED_REPEAT, EXR ZIPS",
+        &[],
+    )?;
 
-    let mlp32 = single(4, One {
-        levels: 4,
-        size: (33, 17),
-        sh: Some(ViewDependence::spherical_harmonics(2, 3)),
-        compression: LC::Zip,
-        dtype: DType::F32,
-        ..one(12, Renderer::mlp(12, 4, vec![8, 8]))
-    })?;
+    let mlp32 = single(
+        4,
+        One {
+            levels: 4,
+            size: (33, 17),
+            sh: Some(ViewDependence::spherical_harmonics(2, 3)),
+            compression: LC::Zip,
+            dtype: DType::F32,
+            ..one(12, Renderer::mlp(12, 4, vec![8, 8]))
+        },
+    )?;
     w.put("valid/mlp_f32_sh2_4levels.glb", &glb(&mlp32)?, "mlp hidden [8, 8], RGBA output, SH degree 2 on channels 3..12, 4 levels from 33x17, f32 weights, EXR ZIP", &[])?;
 
-    let mlp0 = single(5, One {
-        levels: 1,
-        size: (5, 3),
-        wrap: (WM::Repeat, WM::ClampToEdge),
-        compression: LC::Piz,
-        ..one(4, Renderer::mlp(4, 3, vec![]))
-    })?;
+    let mlp0 = single(
+        5,
+        One {
+            levels: 1,
+            size: (5, 3),
+            wrap: (WM::Repeat, WM::ClampToEdge),
+            compression: LC::Piz,
+            ..one(4, Renderer::mlp(4, 3, vec![]))
+        },
+    )?;
     w.put("valid/mlp_linear.gltf", &mlp0.to_gltf_embedded()?, "mlp without hidden layers, .gltf with an embedded data: URI buffer, 1 level 5x3, REPEAT/CLAMP_TO_EDGE, EXR PIZ", &[])?;
 
-    let unet_t = single(6, One {
-        size: (31, 29),
-        compression: LC::Zip,
-        ..one(8, Renderer::unet(8, 4, vec![4, 8], Decoder::TransposedConv, Normalization::Instance))
-    })?;
-    w.put("valid/unet_transposed_instance_f16.glb", &glb(&unet_t)?, "unet widths [4, 8], transposedConv, instance norm, RGBA, 2 levels from 31x29, f16", &[])?;
+    let unet_t = single(
+        6,
+        One {
+            size: (31, 29),
+            compression: LC::Zip,
+            ..one(
+                8,
+                Renderer::unet(
+                    8,
+                    4,
+                    vec![4, 8],
+                    Decoder::TransposedConv,
+                    Normalization::Instance,
+                ),
+            )
+        },
+    )?;
+    w.put(
+        "valid/unet_transposed_instance_f16.glb",
+        &glb(&unet_t)?,
+        "unet widths [4, 8], transposedConv, instance norm, RGBA, 2 levels from 31x29, f16",
+        &[],
+    )?;
 
-    let unet_u = single(7, One {
-        levels: 1,
-        size: (16, 16),
-        sh: Some(ViewDependence::spherical_harmonics(0, 7)),
-        dtype: DType::F32,
-        ..one(8, Renderer::unet(8, 3, vec![4, 8], Decoder::UpsampleConv, Normalization::None))
-    })?;
+    let unet_u = single(
+        7,
+        One {
+            levels: 1,
+            size: (16, 16),
+            sh: Some(ViewDependence::spherical_harmonics(0, 7)),
+            dtype: DType::F32,
+            ..one(
+                8,
+                Renderer::unet(8, 3, vec![4, 8], Decoder::UpsampleConv, Normalization::None),
+            )
+        },
+    )?;
     w.put("valid/unet_upsample_none_f32.glb", &glb(&unet_u)?, "unet widths [4, 8], upsampleConv, no norm, RGB, SH degree 0 on channel 7, 1 level 16x16, f32", &[])?;
 
-    let unet_1 = single(8, One {
-        levels: 4,
-        size: (20, 20),
-        wrap: (WM::MirroredRepeat, WM::Repeat),
-        ..one(4, Renderer::unet(4, 3, vec![4], Decoder::TransposedConv, Normalization::None))
-    })?;
+    let unet_1 = single(
+        8,
+        One {
+            levels: 4,
+            size: (20, 20),
+            wrap: (WM::MirroredRepeat, WM::Repeat),
+            ..one(
+                4,
+                Renderer::unet(4, 3, vec![4], Decoder::TransposedConv, Normalization::None),
+            )
+        },
+    )?;
     let dir_valid = dir.join("valid");
     fs::create_dir_all(&dir_valid)?;
     unet_1.write_gltf_external(&dir_valid.join("unet_depth1_external.gltf"))?;
@@ -374,102 +509,260 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     // ---- invalid, derived from the valid ones
     let base = glb(&mlp16)?;
     let half = &base[..base.len() / 2];
-    w.put("invalid/truncated.glb", half, "GLB cut to half its length", &["GLB_TRUNCATED"])?;
+    w.put(
+        "invalid/truncated.glb",
+        half,
+        "GLB cut to half its length",
+        &["GLB_TRUNCATED"],
+    )?;
     let mut bad = base.clone();
     bad[0] = b'x';
-    w.put("invalid/bad_magic.glb", &bad, "GLB magic is not glTF", &["GLB_INVALID_HEADER"])?;
+    w.put(
+        "invalid/bad_magic.glb",
+        &bad,
+        "GLB magic is not glTF",
+        &["GLB_INVALID_HEADER"],
+    )?;
     let mut bad = base.clone();
     bad[4] = 3;
-    w.put("invalid/glb_version_3.glb", &bad, "GLB container version 3", &["GLB_INVALID_HEADER"])?;
+    w.put(
+        "invalid/glb_version_3.glb",
+        &bad,
+        "GLB container version 3",
+        &["GLB_INVALID_HEADER"],
+    )?;
     let mut bad = base.clone();
     bad[16..20].copy_from_slice(&0x004E_4942u32.to_le_bytes());
-    w.put("invalid/glb_first_chunk_bin.glb", &bad, "first chunk typed BIN instead of JSON", &["GLB_CHUNK_INVALID"])?;
+    w.put(
+        "invalid/glb_first_chunk_bin.glb",
+        &bad,
+        "first chunk typed BIN instead of JSON",
+        &["GLB_CHUNK_INVALID"],
+    )?;
     let mut bad = base.clone();
     bad[20] = b'[';
-    w.put("invalid/json_syntax.glb", &bad, "JSON chunk starts with `[` where `{` was: not well-formed", &["JSON_INVALID"])?;
+    w.put(
+        "invalid/json_syntax.glb",
+        &bad,
+        "JSON chunk starts with `[` where `{` was: not well-formed",
+        &["JSON_INVALID"],
+    )?;
 
-    let json_schema = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!("eight"))?;
-    w.put("invalid/level_width_string.glb", &json_schema, "a level's width is a string", &["JSON_SCHEMA"])?;
+    let json_schema = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!("eight")
+    })?;
+    w.put(
+        "invalid/level_width_string.glb",
+        &json_schema,
+        "a level's width is a string",
+        &["JSON_SCHEMA"],
+    )?;
 
     let out = edit(&base, |v, _| {
         let len = as_usize(&v["buffers"][0]["byteLength"]);
         v["bufferViews"][0]["byteLength"] = json!(len + 64);
     })?;
-    w.put("invalid/buffer_view_out_of_range.glb", &out, "bufferView 0 reaches 64 bytes past the buffer", &["BUFFER_VIEW_OUT_OF_RANGE"])?;
+    w.put(
+        "invalid/buffer_view_out_of_range.glb",
+        &out,
+        "bufferView 0 reaches 64 bytes past the buffer",
+        &["BUFFER_VIEW_OUT_OF_RANGE"],
+    )?;
 
-    let out = edit(&base, |v, _| v["materials"][0]["extensions"][EXTENSION_NAME]["neuralTexture"] = json!(5))?;
-    w.put("invalid/material_texture_index.glb", &out, "material refers to neural texture 5 of 1", &["INDEX_OUT_OF_RANGE"])?;
+    let out = edit(&base, |v, _| {
+        v["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(99)
+    })?;
+    w.put("invalid/position_accessor_index.glb", &out, "POSITION refers to accessor 99 (fuzz regression: gltf-json 1.4's validator indexes it unchecked)", &["INDEX_OUT_OF_RANGE"])?;
+
+    let out = edit(&base, |v, _| {
+        v["materials"][0]["extensions"][EXTENSION_NAME]["neuralTexture"] = json!(5)
+    })?;
+    w.put(
+        "invalid/material_texture_index.glb",
+        &out,
+        "material refers to neural texture 5 of 1",
+        &["INDEX_OUT_OF_RANGE"],
+    )?;
 
     let out = edit(&base, |v, _| {
         let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
         let len = as_usize(&v["bufferViews"][view]["byteLength"]);
         v["bufferViews"][view]["byteLength"] = json!(len / 2);
     })?;
-    w.put("invalid/exr_truncated.glb", &out, "level 0's bufferView holds only the first half of its EXR file", &["EXR_INVALID"])?;
+    w.put(
+        "invalid/exr_truncated.glb",
+        &out,
+        "level 0's bufferView holds only the first half of its EXR file",
+        &["EXR_INVALID"],
+    )?;
 
     let exr5 = encode_level(&TextureLevel::zeros(8, 8, 5), 0, LC::Zip)?;
     let out = edit(&base, |v, bin| {
         let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
         replace_view(v, bin, view, &exr5);
     })?;
-    w.put("invalid/exr_channel_count.glb", &out, "level 0's EXR has 5 channels, the texture declares 6", &["EXR_CHANNELS"])?;
+    w.put(
+        "invalid/exr_channel_count.glb",
+        &out,
+        "level 0's EXR has 5 channels, the texture declares 6",
+        &["EXR_CHANNELS"],
+    )?;
 
     let exr_b44 = raw_exr(8, 8, 6, exr::compression::Compression::B44, false)?;
     let out = edit(&base, |v, bin| {
         let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
         replace_view(v, bin, view, &exr_b44);
     })?;
-    w.put("invalid/exr_lossy_b44.glb", &out, "level 0's EXR uses lossy B44 compression", &["EXR_COMPRESSION"])?;
+    w.put(
+        "invalid/exr_lossy_b44.glb",
+        &out,
+        "level 0's EXR uses lossy B44 compression",
+        &["EXR_COMPRESSION"],
+    )?;
 
     let exr_nan = raw_exr(8, 8, 6, exr::compression::Compression::ZIP16, true)?;
     let out = edit(&base, |v, bin| {
         let view = as_usize(&ext(v)["neuralTextures"][0]["levels"][0]["bufferView"]);
         replace_view(v, bin, view, &exr_nan);
     })?;
-    w.put("invalid/exr_nan.glb", &out, "level 0's EXR holds a NaN half", &["EXR_NON_FINITE"])?;
+    w.put(
+        "invalid/exr_nan.glb",
+        &out,
+        "level 0's EXR holds a NaN half",
+        &["EXR_NON_FINITE"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][1]["height"] = json!(5))?;
-    w.put("invalid/exr_size_mismatch.glb", &out, "level 1 declares 4x5, its EXR is 4x4", &["EXR_SIZE_MISMATCH"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["levels"][1]["height"] = json!(5)
+    })?;
+    w.put(
+        "invalid/exr_size_mismatch.glb",
+        &out,
+        "level 1 declares 4x5, its EXR is 4x4",
+        &["EXR_SIZE_MISMATCH"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"] = json!([]))?;
-    w.put("invalid/texture_no_levels.glb", &out, "neural texture with an empty levels array", &["TEXTURE_NO_LEVELS"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["levels"] = json!([])
+    })?;
+    w.put(
+        "invalid/texture_no_levels.glb",
+        &out,
+        "neural texture with an empty levels array",
+        &["TEXTURE_NO_LEVELS"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/png"))?;
-    w.put("invalid/texture_mime_type.glb", &out, "level mimeType image/png", &["TEXTURE_MIME_TYPE"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/png")
+    })?;
+    w.put(
+        "invalid/texture_mime_type.glb",
+        &out,
+        "level mimeType image/png",
+        &["TEXTURE_MIME_TYPE"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["channels"] = json!(0))?;
-    w.put("invalid/texture_zero_channels.glb", &out, "texture declares 0 channels (so it also mismatches the renderer)", &["TEXTURE_CHANNELS_RANGE", "RENDERER_INPUT_MISMATCH"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["channels"] = json!(0)
+    })?;
+    w.put(
+        "invalid/texture_zero_channels.glb",
+        &out,
+        "texture declares 0 channels (so it also mismatches the renderer)",
+        &["TEXTURE_CHANNELS_RANGE", "RENDERER_INPUT_MISMATCH"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!(100000))?;
-    w.put("invalid/limit_texture_side.glb", &out, "level 0 declares width 100000, above the default side limit 16384", &["LIMIT_EXCEEDED"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!(100000)
+    })?;
+    w.put(
+        "invalid/limit_texture_side.glb",
+        &out,
+        "level 0 declares width 100000, above the default side limit 16384",
+        &["LIMIT_EXCEEDED"],
+    )?;
 
     let sh_base = glb(&none_sh)?;
-    let out = edit(&sh_base, |v, _| ext(v)["neuralTextures"][0]["viewDependence"]["degree"] = json!(4))?;
-    w.put("invalid/sh_degree_4.glb", &out, "SH degree 4", &["SH_DEGREE_UNSUPPORTED"])?;
-    let out = edit(&sh_base, |v, _| ext(v)["neuralTextures"][0]["viewDependence"]["firstChannel"] = json!(4))?;
-    w.put("invalid/sh_channels_out_of_range.glb", &out, "SH degree 1 from channel 4 needs channels 4..8 of 7", &["SH_CHANNELS_OUT_OF_RANGE"])?;
+    let out = edit(&sh_base, |v, _| {
+        ext(v)["neuralTextures"][0]["viewDependence"]["degree"] = json!(4)
+    })?;
+    w.put(
+        "invalid/sh_degree_4.glb",
+        &out,
+        "SH degree 4",
+        &["SH_DEGREE_UNSUPPORTED"],
+    )?;
+    let out = edit(&sh_base, |v, _| {
+        ext(v)["neuralTextures"][0]["viewDependence"]["firstChannel"] = json!(4)
+    })?;
+    w.put(
+        "invalid/sh_channels_out_of_range.glb",
+        &out,
+        "SH degree 1 from channel 4 needs channels 4..8 of 7",
+        &["SH_CHANNELS_OUT_OF_RANGE"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["renderers"][0]["architecture"] = json!("transformer"))?;
-    w.put("invalid/unknown_architecture.glb", &out, "architecture `transformer`", &["RENDERER_UNKNOWN_ARCHITECTURE"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["renderers"][0]["architecture"] = json!("transformer")
+    })?;
+    w.put(
+        "invalid/unknown_architecture.glb",
+        &out,
+        "architecture `transformer`",
+        &["RENDERER_UNKNOWN_ARCHITECTURE"],
+    )?;
 
     let unet_base = glb(&unet_t)?;
-    let out = edit(&unet_base, |v, _| ext(v)["renderers"][0]["decoder"] = json!("pixelShuffle"))?;
-    w.put("invalid/unet_unknown_decoder.glb", &out, "unet decoder `pixelShuffle`", &["RENDERER_PARAMETER_INVALID"])?;
-    let out = edit(&unet_base, |v, _| ext(v)["renderers"][0]["widths"] = json!([]))?;
-    w.put("invalid/unet_no_widths.glb", &out, "unet with empty widths", &["RENDERER_PARAMETER_INVALID"])?;
+    let out = edit(&unet_base, |v, _| {
+        ext(v)["renderers"][0]["decoder"] = json!("pixelShuffle")
+    })?;
+    w.put(
+        "invalid/unet_unknown_decoder.glb",
+        &out,
+        "unet decoder `pixelShuffle`",
+        &["RENDERER_PARAMETER_INVALID"],
+    )?;
+    let out = edit(&unet_base, |v, _| {
+        ext(v)["renderers"][0]["widths"] = json!([])
+    })?;
+    w.put(
+        "invalid/unet_no_widths.glb",
+        &out,
+        "unet with empty widths",
+        &["RENDERER_PARAMETER_INVALID"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["renderers"][0]["outputChannels"] = json!(5))?;
-    w.put("invalid/output_channels_5.glb", &out, "outputChannels 5", &["RENDERER_OUTPUT_CHANNELS"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["renderers"][0]["outputChannels"] = json!(5)
+    })?;
+    w.put(
+        "invalid/output_channels_5.glb",
+        &out,
+        "outputChannels 5",
+        &["RENDERER_OUTPUT_CHANNELS"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["renderers"][0]["inputChannels"] = json!(5))?;
-    w.put("invalid/renderer_input_mismatch.glb", &out, "renderer takes 5 channels, texture has 6 (so layers.0.weight has the wrong shape too)", &["RENDERER_INPUT_MISMATCH", "WEIGHTS_SHAPE_MISMATCH"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["renderers"][0]["inputChannels"] = json!(5)
+    })?;
+    w.put(
+        "invalid/renderer_input_mismatch.glb",
+        &out,
+        "renderer takes 5 channels, texture has 6 (so layers.0.weight has the wrong shape too)",
+        &["RENDERER_INPUT_MISMATCH", "WEIGHTS_SHAPE_MISMATCH"],
+    )?;
 
     let out = edit(&base, |v, _| {
         if let Some(a) = ext(v)["renderers"][0]["weights"].as_array_mut() {
             a.remove(1);
         }
     })?;
-    w.put("invalid/weights_missing.glb", &out, "descriptor of layers.0.bias removed", &["WEIGHTS_MISSING"])?;
+    w.put(
+        "invalid/weights_missing.glb",
+        &out,
+        "descriptor of layers.0.bias removed",
+        &["WEIGHTS_MISSING"],
+    )?;
 
     let out = edit(&base, |v, _| {
         let mut extra = ext(v)["renderers"][0]["weights"][1].clone();
@@ -478,13 +771,32 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
             a.push(extra);
         }
     })?;
-    w.put("invalid/weights_unexpected.glb", &out, "an extra tensor layers.9.bias", &["WEIGHTS_UNEXPECTED"])?;
+    w.put(
+        "invalid/weights_unexpected.glb",
+        &out,
+        "an extra tensor layers.9.bias",
+        &["WEIGHTS_UNEXPECTED"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["renderers"][0]["weights"][1]["shape"] = json!([2, 4]))?;
-    w.put("invalid/weights_shape_mismatch.glb", &out, "layers.0.bias declared [2, 4] instead of [8] (same byte count)", &["WEIGHTS_SHAPE_MISMATCH"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["renderers"][0]["weights"][1]["shape"] = json!([2, 4])
+    })?;
+    w.put(
+        "invalid/weights_shape_mismatch.glb",
+        &out,
+        "layers.0.bias declared [2, 4] instead of [8] (same byte count)",
+        &["WEIGHTS_SHAPE_MISMATCH"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("bf16"))?;
-    w.put("invalid/weights_dtype_bf16.glb", &out, "dtype bf16", &["WEIGHTS_DTYPE_UNKNOWN"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("bf16")
+    })?;
+    w.put(
+        "invalid/weights_dtype_bf16.glb",
+        &out,
+        "dtype bf16",
+        &["WEIGHTS_DTYPE_UNKNOWN"],
+    )?;
 
     let out = edit(&base, |v, bin| {
         // Shift layers.0.bias by 2 bytes and fix its checksum, so only the alignment is wrong.
@@ -494,13 +806,25 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         let crc = crc32fast::hash(&bin[s..e]);
         ext(v)["renderers"][0]["weights"][1]["crc32"] = json!(crc);
     })?;
-    w.put("invalid/weights_misaligned.glb", &out, "layers.0.bias at byteOffset + 2 (checksum matching the shifted bytes)", &["WEIGHTS_MISALIGNED"])?;
+    w.put(
+        "invalid/weights_misaligned.glb",
+        &out,
+        "layers.0.bias at byteOffset + 2 (checksum matching the shifted bytes)",
+        &["WEIGHTS_MISALIGNED"],
+    )?;
 
     let out = edit(&base, |v, _| {
-        let crc = ext(v)["renderers"][0]["weights"][2]["crc32"].as_u64().unwrap_or(0);
+        let crc = ext(v)["renderers"][0]["weights"][2]["crc32"]
+            .as_u64()
+            .unwrap_or(0);
         ext(v)["renderers"][0]["weights"][2]["crc32"] = json!(crc ^ 1);
     })?;
-    w.put("invalid/weights_checksum.glb", &out, "crc32 of layers.1.weight off by one bit", &["WEIGHTS_CHECKSUM_MISMATCH"])?;
+    w.put(
+        "invalid/weights_checksum.glb",
+        &out,
+        "crc32 of layers.1.weight off by one bit",
+        &["WEIGHTS_CHECKSUM_MISMATCH"],
+    )?;
 
     let out = edit(&base, |v, bin| {
         let (s, e) = weight_range(v, 0);
@@ -508,10 +832,22 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         let crc = crc32fast::hash(&bin[s..e]);
         ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
     })?;
-    w.put("invalid/weights_nan.glb", &out, "layers.0.weight holds a NaN (checksum updated)", &["WEIGHTS_NON_FINITE"])?;
+    w.put(
+        "invalid/weights_nan.glb",
+        &out,
+        "layers.0.weight holds a NaN (checksum updated)",
+        &["WEIGHTS_NON_FINITE"],
+    )?;
 
-    let out = edit(&base, |v, _| ext(v)["renderers"][0]["weights"][0]["byteOffset"] = json!(1 << 20))?;
-    w.put("invalid/weights_past_view.glb", &out, "layers.0.weight starts 1 MiB into a small bufferView", &["BUFFER_VIEW_OUT_OF_RANGE"])?;
+    let out = edit(&base, |v, _| {
+        ext(v)["renderers"][0]["weights"][0]["byteOffset"] = json!(1 << 20)
+    })?;
+    w.put(
+        "invalid/weights_past_view.glb",
+        &out,
+        "layers.0.weight starts 1 MiB into a small bufferView",
+        &["BUFFER_VIEW_OUT_OF_RANGE"],
+    )?;
 
     let out = edit(&base, |v, _| {
         v["extensionsRequired"] = json!([EXTENSION_NAME]);
@@ -519,16 +855,40 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
             p.remove("baseColorTexture");
         }
     })?;
-    w.put("invalid/required_without_fallback.glb", &out, "extension in extensionsRequired and the material has no baseColorTexture", &["EXTENSION_REQUIRED", "FALLBACK_MISSING"])?;
+    w.put(
+        "invalid/required_without_fallback.glb",
+        &out,
+        "extension in extensionsRequired and the material has no baseColorTexture",
+        &["EXTENSION_REQUIRED", "FALLBACK_MISSING"],
+    )?;
 
-    let out = edit(&base, |v, _| v["extensionsUsed"] = json!(["KHR_materials_unlit"]))?;
-    w.put("invalid/extension_not_used.glb", &out, "extension missing from extensionsUsed", &["EXTENSION_NOT_USED"])?;
+    let out = edit(&base, |v, _| {
+        v["extensionsUsed"] = json!(["KHR_materials_unlit"])
+    })?;
+    w.put(
+        "invalid/extension_not_used.glb",
+        &out,
+        "extension missing from extensionsUsed",
+        &["EXTENSION_NOT_USED"],
+    )?;
 
     let out = edit(&base, |v, _| ext(v)["version"] = json!(2))?;
-    w.put("invalid/version_2.glb", &out, "extension version 2", &["VERSION_UNSUPPORTED"])?;
+    w.put(
+        "invalid/version_2.glb",
+        &out,
+        "extension version 2",
+        &["VERSION_UNSUPPORTED"],
+    )?;
 
-    let out = edit(&base, |v, _| v["materials"][0]["extensions"][EXTENSION_NAME]["texCoord"] = json!(1))?;
-    w.put("invalid/texcoord_missing.glb", &out, "material addresses TEXCOORD_1, the primitive has only TEXCOORD_0 (a warning: exit code 0)", &["TEXCOORD_MISSING"])?;
+    let out = edit(&base, |v, _| {
+        v["materials"][0]["extensions"][EXTENSION_NAME]["texCoord"] = json!(1)
+    })?;
+    w.put(
+        "invalid/texcoord_missing.glb",
+        &out,
+        "material addresses TEXCOORD_1, the primitive has only TEXCOORD_0 (a warning: exit code 0)",
+        &["TEXCOORD_MISSING"],
+    )?;
 
     // Levels listed coarsest first: a warning only.
     let mut rng = ChaCha8Rng::seed_from_u64(10);
@@ -542,17 +902,38 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         view_dependence: None,
         compression: LC::Zip,
     });
-    let r = b.add_renderer(RendererDesc { renderer: Renderer::new(A::None, 3, 3), tensors: BTreeMap::new(), dtype: DType::F16 });
-    let m = b.add_material(MaterialDesc { name: None, neural_texture: t, renderer: r });
+    let r = b.add_renderer(RendererDesc {
+        renderer: Renderer::new(A::None, 3, 3),
+        tensors: BTreeMap::new(),
+        dtype: DType::F16,
+    });
+    let m = b.add_material(MaterialDesc {
+        name: None,
+        neural_texture: t,
+        renderer: r,
+    });
     let mesh = b.add_mesh(None, vec![quad(1.0, 0.0, m)]);
-    b.add_node(Node { mesh: Some(mesh), ..Node::default() });
-    w.put("invalid/levels_coarse_first.glb", &glb(&b.build_container()?)?, "levels listed 4x4 then 8x8 (a warning: exit code 0)", &["TEXTURE_LEVEL_ORDER"])?;
+    b.add_node(Node {
+        mesh: Some(mesh),
+        ..Node::default()
+    });
+    w.put(
+        "invalid/levels_coarse_first.glb",
+        &glb(&b.build_container()?)?,
+        "levels listed 4x4 then 8x8 (a warning: exit code 0)",
+        &["TEXTURE_LEVEL_ORDER"],
+    )?;
 
     let mut gltf: Value = serde_json::from_slice(&mlp0.to_gltf_embedded()?)?;
     gltf["buffers"][0]["uri"] = json!("missing.bin");
     let mut text = serde_json::to_vec_pretty(&gltf)?;
     text.push(b'\n');
-    w.put("invalid/missing_external_buffer.gltf", &text, ".gltf whose buffer is an external file that does not exist", &["BUFFER_INVALID"])?;
+    w.put(
+        "invalid/missing_external_buffer.gltf",
+        &text,
+        ".gltf whose buffer is an external file that does not exist",
+        &["BUFFER_INVALID"],
+    )?;
 
     write_index(dir, &w.samples)?;
     Ok(w.samples)
@@ -578,8 +959,15 @@ fn write_index(dir: &Path, samples: &[Sample]) -> Res<()> {
          | file | exercises | expected codes |\n|---|---|---|\n",
     );
     for s in samples {
-        let codes = if s.expected.is_empty() { "none".to_string() } else { s.expected.join(", ") };
-        md.push_str(&format!("| `{}` | {} | {} |\n", s.path, s.description, codes));
+        let codes = if s.expected.is_empty() {
+            "none".to_string()
+        } else {
+            s.expected.join(", ")
+        };
+        md.push_str(&format!(
+            "| `{}` | {} | {} |\n",
+            s.path, s.description, codes
+        ));
     }
     md.push_str("\n`valid/unet_depth1_external.bin` is the external buffer of `valid/unet_depth1_external.gltf`.\n");
     fs::write(dir.join("README.md"), md)?;

@@ -49,7 +49,9 @@ pub fn renderer_problems(r: &Renderer) -> Vec<Problem> {
                     "widths has {} entries, must have 1..={MAX_UNET_DEPTH}",
                     w.len()
                 ))),
-                Some(w) if w.contains(&0) => out.push(param(format!("widths {w:?} has a zero width"))),
+                Some(w) if w.contains(&0) => {
+                    out.push(param(format!("widths {w:?} has a zero width")))
+                }
                 Some(_) => {}
             }
             match &r.decoder {
@@ -140,13 +142,25 @@ mod tests {
                 ("layers.2.bias", vec![4]),
             ]
         );
-        assert_eq!(architecture_tensors(&Renderer::mlp(3, 3, vec![])).unwrap().len(), 2);
+        assert_eq!(
+            architecture_tensors(&Renderer::mlp(3, 3, vec![]))
+                .unwrap()
+                .len(),
+            2
+        );
     }
 
     #[test]
     fn unet_shapes_follow_design() {
-        let r = Renderer::unet(6, 4, vec![4, 8, 16], Decoder::TransposedConv, Normalization::Instance);
-        let t: std::collections::BTreeMap<_, _> = architecture_tensors(&r).unwrap().into_iter().collect();
+        let r = Renderer::unet(
+            6,
+            4,
+            vec![4, 8, 16],
+            Decoder::TransposedConv,
+            Normalization::Instance,
+        );
+        let t: std::collections::BTreeMap<_, _> =
+            architecture_tensors(&r).unwrap().into_iter().collect();
         assert_eq!(t["encoder.0.weight"], vec![4, 6, 4, 4]);
         assert_eq!(t["encoder.2.weight"], vec![16, 8, 4, 4]);
         assert_eq!(t["decoder.2.weight"], vec![16, 8, 4, 4]);
@@ -154,16 +168,30 @@ mod tests {
         assert_eq!(t["decoder.0.weight"], vec![8, 4, 4, 4]);
         assert_eq!(t["decoder.0.bias"], vec![4]);
         let r = Renderer::unet(6, 3, vec![5], Decoder::UpsampleConv, Normalization::None);
-        let t: std::collections::BTreeMap<_, _> = architecture_tensors(&r).unwrap().into_iter().collect();
+        let t: std::collections::BTreeMap<_, _> =
+            architecture_tensors(&r).unwrap().into_iter().collect();
         assert_eq!(t["decoder.0.weight"], vec![3, 5, 3, 3]);
         assert_eq!(t.len(), 4);
     }
 
     #[test]
     fn invalid_parameters() {
-        let mut r = Renderer::unet(6, 5, vec![], Decoder::Unknown("x".into()), Normalization::Instance);
+        let mut r = Renderer::unet(
+            6,
+            5,
+            vec![],
+            Decoder::Unknown("x".into()),
+            Normalization::Instance,
+        );
         let codes: Vec<_> = renderer_problems(&r).iter().map(|p| p.code).collect();
-        assert_eq!(codes, ["RENDERER_OUTPUT_CHANNELS", "RENDERER_PARAMETER_INVALID", "RENDERER_PARAMETER_INVALID"]);
+        assert_eq!(
+            codes,
+            [
+                "RENDERER_OUTPUT_CHANNELS",
+                "RENDERER_PARAMETER_INVALID",
+                "RENDERER_PARAMETER_INVALID"
+            ]
+        );
         r.architecture = Architecture::Unknown("gan".into());
         assert!(architecture_tensors(&r).is_err());
     }

@@ -198,6 +198,17 @@ pub fn write_asset(path: impl AsRef<Path>, asset: &Asset) -> Result<()> {
 /// anything the validator reports as an error.
 pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
     let root = &container.root;
+    let core = crate::validate::validate_core(root, limits);
+    if let Some(i) = core
+        .issues
+        .iter()
+        .find(|i| i.severity == crate::Severity::Error)
+    {
+        return Err(Error::invalid(format!(
+            "{} at {}: {}",
+            i.code, i.pointer, i.message
+        )));
+    }
     for i in 0..root.buffer_views.len() {
         // Every view must lie inside its buffer, used by the extension or not.
         container.view_bytes(i as u32)?;
@@ -214,19 +225,27 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
     }
     let uses = root_extension_value(root).is_some() || materials.iter().any(Option::is_some);
     if uses && !root.extensions_used.iter().any(|e| e == EXTENSION_NAME) {
-        return Err(Error::invalid(format!("`{EXTENSION_NAME}` is used but not in extensionsUsed")));
+        return Err(Error::invalid(format!(
+            "`{EXTENSION_NAME}` is used but not in extensionsUsed"
+        )));
     }
     if root.extensions_required.iter().any(|e| e == EXTENSION_NAME) {
-        return Err(Error::invalid(format!("`{EXTENSION_NAME}` is in extensionsRequired")));
+        return Err(Error::invalid(format!(
+            "`{EXTENSION_NAME}` is in extensionsRequired"
+        )));
     }
     for (i, m) in root.materials.iter().enumerate() {
         if materials[i].is_some() && m.pbr_metallic_roughness.base_color_texture.is_none() {
-            return Err(Error::invalid(format!("material {i} has no baseColorTexture fallback")));
+            return Err(Error::invalid(format!(
+                "material {i} has no baseColorTexture fallback"
+            )));
         }
     }
     let Some(value) = root_extension_value(root) else {
         if materials.iter().any(Option::is_some) {
-            return Err(Error::invalid("materials use the extension but the root has none"));
+            return Err(Error::invalid(
+                "materials use the extension but the root has none",
+            ));
         }
         return Ok(Asset {
             container,
@@ -246,24 +265,42 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
     let mut texel_values = 0u64;
     let mut textures = Vec::with_capacity(ext.neural_textures.len());
     for (ti, t) in ext.neural_textures.iter().enumerate() {
-        Limits::check("texture levels", t.levels.len() as u64, u64::from(limits.max_levels))?;
-        Limits::check("texture channels", u64::from(t.channels), u64::from(limits.max_channels))?;
+        Limits::check(
+            "texture levels",
+            t.levels.len() as u64,
+            u64::from(limits.max_levels),
+        )?;
+        Limits::check(
+            "texture channels",
+            u64::from(t.channels),
+            u64::from(limits.max_channels),
+        )?;
         if t.levels.is_empty() || t.channels == 0 {
-            return Err(Error::invalid(format!("texture {ti} has no levels or no channels")));
+            return Err(Error::invalid(format!(
+                "texture {ti} has no levels or no channels"
+            )));
         }
         let mut levels = Vec::with_capacity(t.levels.len());
         for (li, l) in t.levels.iter().enumerate() {
             if l.mime_type != model::LEVEL_MIME_TYPE {
-                return Err(Error::not_supported(format!("texture {ti} level {li} mimeType `{}`", l.mime_type)));
+                return Err(Error::not_supported(format!(
+                    "texture {ti} level {li} mimeType `{}`",
+                    l.mime_type
+                )));
             }
-            texel_values = texel_values.saturating_add(
-                u64::from(l.width) * u64::from(l.height) * u64::from(t.channels),
-            );
+            texel_values = texel_values
+                .saturating_add(u64::from(l.width) * u64::from(l.height) * u64::from(t.channels));
             Limits::check("texel values", texel_values, limits.max_total_texel_values)?;
             let bytes = container.view_bytes(l.buffer_view)?;
-            let expect = LevelExpect { width: l.width, height: l.height, channels: t.channels };
+            let expect = LevelExpect {
+                width: l.width,
+                height: l.height,
+                channels: t.channels,
+            };
             let level = decode_level(bytes, expect, limits).map_err(|p| match p.error {
-                Error::Invalid { what } => Error::invalid(format!("texture {ti} level {li}: {what}")),
+                Error::Invalid { what } => {
+                    Error::invalid(format!("texture {ti} level {li}: {what}"))
+                }
                 other => other,
             })?;
             levels.push(level);
@@ -271,11 +308,13 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
         let (wrap_s, wrap_t) = match t.sampler {
             None => (WrapMode::Repeat, WrapMode::Repeat),
             Some(s) => {
-                let s = root
-                    .samplers
-                    .get(s as usize)
-                    .ok_or_else(|| Error::invalid(format!("texture {ti}: sampler {s} does not exist")))?;
-                (WrapMode::from_json(&s.wrap_s)?, WrapMode::from_json(&s.wrap_t)?)
+                let s = root.samplers.get(s as usize).ok_or_else(|| {
+                    Error::invalid(format!("texture {ti}: sampler {s} does not exist"))
+                })?;
+                (
+                    WrapMode::from_json(&s.wrap_s)?,
+                    WrapMode::from_json(&s.wrap_t)?,
+                )
             }
         };
         if let Some(vd) = &t.view_dependence {
@@ -286,7 +325,9 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
                 )));
             }
             if u64::from(vd.first_channel) + vd.coefficient_count() > u64::from(t.channels) {
-                return Err(Error::invalid(format!("texture {ti}: SH channels beyond the texture")));
+                return Err(Error::invalid(format!(
+                    "texture {ti}: SH channels beyond the texture"
+                )));
             }
         }
         textures.push(DecodedTexture {
@@ -303,12 +344,18 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
         let required: BTreeMap<String, Vec<u32>> = architecture_tensors(r)
             .map_err(|e| match e {
                 Error::Invalid { what } => Error::invalid(format!("renderer {ri}: {what}")),
-                Error::NotSupported { what } => Error::not_supported(format!("renderer {ri}: {what}")),
+                Error::NotSupported { what } => {
+                    Error::not_supported(format!("renderer {ri}: {what}"))
+                }
                 other => other,
             })?
             .into_iter()
             .collect();
-        Limits::check("tensors", r.weights.len() as u64, u64::from(limits.max_tensors))?;
+        Limits::check(
+            "tensors",
+            r.weights.len() as u64,
+            u64::from(limits.max_tensors),
+        )?;
         let mut tensors = BTreeMap::new();
         for w in &r.weights {
             let what = format!("renderer {ri} tensor `{}`", w.name);
@@ -316,18 +363,33 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
                 return Err(Error::not_supported(format!("{what}: dtype `{}`", w.dtype)));
             }
             match required.get(&w.name) {
-                None => return Err(Error::invalid(format!("{what} is not used by the architecture"))),
+                None => {
+                    return Err(Error::invalid(format!(
+                        "{what} is not used by the architecture"
+                    )))
+                }
                 Some(s) if *s != w.shape => {
-                    return Err(Error::invalid(format!("{what}: shape {:?}, expected {s:?}", w.shape)))
+                    return Err(Error::invalid(format!(
+                        "{what}: shape {:?}, expected {s:?}",
+                        w.shape
+                    )))
                 }
                 _ => {}
             }
             if w.byte_offset % 4 != 0 {
-                return Err(Error::invalid(format!("{what}: byteOffset not a multiple of 4")));
+                return Err(Error::invalid(format!(
+                    "{what}: byteOffset not a multiple of 4"
+                )));
             }
-            let n = w.element_count().ok_or_else(|| Error::invalid(format!("{what}: shape overflows")))?;
+            let n = w
+                .element_count()
+                .ok_or_else(|| Error::invalid(format!("{what}: shape overflows")))?;
             weight_elements = weight_elements.saturating_add(n);
-            Limits::check("weight elements", weight_elements, limits.max_weight_elements)?;
+            Limits::check(
+                "weight elements",
+                weight_elements,
+                limits.max_weight_elements,
+            )?;
             let view = container.view_bytes(w.buffer_view)?;
             let len = w.byte_length().unwrap_or(u64::MAX);
             let bytes = usize::try_from(w.byte_offset)
@@ -343,16 +405,27 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
                 return Err(Error::invalid(format!("{what} has non-finite values")));
             }
             if tensors
-                .insert(w.name.clone(), TensorF32 { shape: w.shape.clone(), data })
+                .insert(
+                    w.name.clone(),
+                    TensorF32 {
+                        shape: w.shape.clone(),
+                        data,
+                    },
+                )
                 .is_some()
             {
                 return Err(Error::invalid(format!("{what} appears twice")));
             }
         }
         if let Some(missing) = required.keys().find(|k| !tensors.contains_key(*k)) {
-            return Err(Error::invalid(format!("renderer {ri}: tensor `{missing}` is missing")));
+            return Err(Error::invalid(format!(
+                "renderer {ri}: tensor `{missing}` is missing"
+            )));
         }
-        renderers.push(DecodedRenderer { spec: r.clone(), tensors });
+        renderers.push(DecodedRenderer {
+            spec: r.clone(),
+            tensors,
+        });
     }
     for (mi, m) in materials.iter().enumerate() {
         if let Some(m) = m {
@@ -365,7 +438,11 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
                         "material {mi}: texture channels differ from renderer inputChannels"
                     )))
                 }
-                _ => return Err(Error::invalid(format!("material {mi}: texture or renderer index"))),
+                _ => {
+                    return Err(Error::invalid(format!(
+                        "material {mi}: texture or renderer index"
+                    )))
+                }
             }
         }
     }
@@ -499,7 +576,8 @@ impl BinWriter {
         self.data.resize(self.data.len().next_multiple_of(4), 0);
         let offset = self.data.len() as u64;
         self.data.extend_from_slice(bytes);
-        let index = u32::try_from(self.views.len()).map_err(|_| Error::invalid("too many bufferViews"))?;
+        let index =
+            u32::try_from(self.views.len()).map_err(|_| Error::invalid("too many bufferViews"))?;
         self.views.push(json::buffer::View {
             buffer: json::Index::new(0),
             byte_length: USize64(bytes.len() as u64),
@@ -578,7 +656,10 @@ impl AssetBuilder {
             },
             ..Default::default()
         };
-        let mut bin = BinWriter { data: Vec::new(), views: Vec::new() };
+        let mut bin = BinWriter {
+            data: Vec::new(),
+            views: Vec::new(),
+        };
 
         for (mi, (name, prims)) in self.meshes.iter().enumerate() {
             let mut primitives = Vec::new();
@@ -599,7 +680,8 @@ impl AssetBuilder {
             for &c in &n.children {
                 *is_child
                     .get_mut(c)
-                    .ok_or_else(|| Error::invalid(format!("child node {c} does not exist")))? = true;
+                    .ok_or_else(|| Error::invalid(format!("child node {c} does not exist")))? =
+                    true;
             }
         }
         for n in &self.nodes {
@@ -635,7 +717,10 @@ impl AssetBuilder {
         }
 
         // Neural textures: one core sampler each, shared with its PNG fallback texture.
-        let mut ext = model::Extension { version: model::VERSION, ..Default::default() };
+        let mut ext = model::Extension {
+            version: model::VERSION,
+            ..Default::default()
+        };
         let mut fallback_textures = Vec::new();
         for (ti, t) in self.textures.iter().enumerate() {
             let first = t
@@ -643,7 +728,8 @@ impl AssetBuilder {
                 .first()
                 .ok_or_else(|| Error::invalid(format!("texture {ti} has no levels")))?;
             let channels = first.channels;
-            let sampler = u32::try_from(root.samplers.len()).map_err(|_| Error::invalid("samplers"))?;
+            let sampler =
+                u32::try_from(root.samplers.len()).map_err(|_| Error::invalid("samplers"))?;
             root.samplers.push(json::texture::Sampler {
                 mag_filter: Some(Checked::Valid(json::texture::MagFilter::Linear)),
                 min_filter: Some(Checked::Valid(json::texture::MinFilter::Linear)),
@@ -713,10 +799,9 @@ impl AssetBuilder {
                 .map_err(|e| Error::invalid(format!("renderer {ri}: {e}")))?;
             let mut ordered = Vec::with_capacity(required.len());
             for (name, shape) in &required {
-                let t = r
-                    .tensors
-                    .get(name)
-                    .ok_or_else(|| Error::invalid(format!("renderer {ri}: tensor `{name}` is missing")))?;
+                let t = r.tensors.get(name).ok_or_else(|| {
+                    Error::invalid(format!("renderer {ri}: tensor `{name}` is missing"))
+                })?;
                 if t.shape != *shape {
                     return Err(Error::invalid(format!(
                         "renderer {ri}: tensor `{name}` has shape {:?}, expected {shape:?}",
@@ -725,13 +810,20 @@ impl AssetBuilder {
                 }
                 ordered.push((name.as_str(), t));
             }
-            if let Some(extra) = r.tensors.keys().find(|k| !required.iter().any(|(n, _)| n == *k)) {
-                return Err(Error::invalid(format!("renderer {ri}: tensor `{extra}` is not used")));
+            if let Some(extra) = r
+                .tensors
+                .keys()
+                .find(|k| !required.iter().any(|(n, _)| n == *k))
+            {
+                return Err(Error::invalid(format!(
+                    "renderer {ri}: tensor `{extra}` is not used"
+                )));
             }
             let mut spec = r.renderer.clone();
             spec.weights = Vec::new();
             if !ordered.is_empty() {
-                let view = u32::try_from(bin.views.len()).map_err(|_| Error::invalid("bufferViews"))?;
+                let view =
+                    u32::try_from(bin.views.len()).map_err(|_| Error::invalid("bufferViews"))?;
                 let (blob, descriptors) = pack_tensors(ordered, &r.dtype, view)
                     .map_err(|e| Error::invalid(format!("renderer {ri}: {e}")))?;
                 bin.push(&blob, None)?;
@@ -741,14 +833,18 @@ impl AssetBuilder {
         }
 
         for (mi, m) in self.materials.iter().enumerate() {
-            let tex = *fallback_textures
-                .get(m.neural_texture)
-                .ok_or_else(|| Error::invalid(format!("material {mi}: texture {}", m.neural_texture)))?;
+            let tex = *fallback_textures.get(m.neural_texture).ok_or_else(|| {
+                Error::invalid(format!("material {mi}: texture {}", m.neural_texture))
+            })?;
             if m.renderer >= self.renderers.len() {
-                return Err(Error::invalid(format!("material {mi}: renderer {}", m.renderer)));
+                return Err(Error::invalid(format!(
+                    "material {mi}: renderer {}",
+                    m.renderer
+                )));
             }
             let me = MaterialExtension {
-                neural_texture: u32::try_from(m.neural_texture).map_err(|_| Error::invalid("index"))?,
+                neural_texture: u32::try_from(m.neural_texture)
+                    .map_err(|_| Error::invalid("index"))?,
                 renderer: u32::try_from(m.renderer).map_err(|_| Error::invalid("index"))?,
                 tex_coord: 0,
                 ..Default::default()
@@ -767,6 +863,8 @@ impl AssetBuilder {
                     metallic_factor: json::material::StrengthFactor(0.0),
                     ..Default::default()
                 },
+                // More fields exist when other crates enable more gltf-json features.
+                #[allow(clippy::needless_update)]
                 extensions: Some(json::extensions::material::Material {
                     unlit: Some(json::extensions::material::Unlit {}),
                     others,
@@ -776,13 +874,21 @@ impl AssetBuilder {
             });
         }
         for (mi, (_, prims)) in self.meshes.iter().enumerate() {
-            if let Some(m) = prims.iter().filter_map(|p| p.material).find(|&m| m >= self.materials.len()) {
-                return Err(Error::invalid(format!("mesh {mi}: material {m} does not exist")));
+            if let Some(m) = prims
+                .iter()
+                .filter_map(|p| p.material)
+                .find(|&m| m >= self.materials.len())
+            {
+                return Err(Error::invalid(format!(
+                    "mesh {mi}: material {m} does not exist"
+                )));
             }
         }
 
         let mut root_ext = json::extensions::root::Root::default();
-        root_ext.others.insert(EXTENSION_NAME.to_string(), to_value(&ext)?);
+        root_ext
+            .others
+            .insert(EXTENSION_NAME.to_string(), to_value(&ext)?);
         root.extensions = Some(root_ext);
         root.extensions_used.push(EXTENSION_NAME.to_string());
         if !self.materials.is_empty() {
@@ -797,7 +903,10 @@ impl AssetBuilder {
             extensions: None,
             extras: Default::default(),
         });
-        Ok(Container { root, buffers: vec![bin.data] })
+        Ok(Container {
+            root,
+            buffers: vec![bin.data],
+        })
     }
 
     fn encode_primitive(
@@ -814,7 +923,10 @@ impl AssetBuilder {
         if n == 0 || p.tex_coords.len() != n || p.normals.as_ref().is_some_and(|v| v.len() != n) {
             return Err(what("attribute counts differ or are zero"));
         }
-        if p.indices.is_empty() || p.indices.len() % 3 != 0 || p.indices.iter().any(|&i| i as usize >= n) {
+        if p.indices.is_empty()
+            || p.indices.len() % 3 != 0
+            || p.indices.iter().any(|&i| i as usize >= n)
+        {
             return Err(what("indices are not a triangle list into the vertices"));
         }
         let mut accessor = |root: &mut json::Root,
@@ -843,7 +955,8 @@ impl AssetBuilder {
             });
             Ok(i)
         };
-        let f32s = |v: &mut dyn Iterator<Item = f32>| v.flat_map(f32::to_le_bytes).collect::<Vec<u8>>();
+        let f32s =
+            |v: &mut dyn Iterator<Item = f32>| v.flat_map(f32::to_le_bytes).collect::<Vec<u8>>();
         let mut lo = [f32::INFINITY; 3];
         let mut hi = [f32::NEG_INFINITY; 3];
         for v in &p.positions {
@@ -891,9 +1004,18 @@ impl AssetBuilder {
         attributes.insert(Checked::Valid(json::mesh::Semantic::TexCoords(0)), uv);
         // u16 when every index fits below the primitive-restart value 65535.
         let (bytes, ct) = if n < 65535 {
-            (p.indices.iter().flat_map(|&i| (i as u16).to_le_bytes()).collect(), ComponentType::U16)
+            (
+                p.indices
+                    .iter()
+                    .flat_map(|&i| (i as u16).to_le_bytes())
+                    .collect(),
+                ComponentType::U16,
+            )
         } else {
-            (p.indices.iter().flat_map(|&i| i.to_le_bytes()).collect(), ComponentType::U32)
+            (
+                p.indices.iter().flat_map(|&i| i.to_le_bytes()).collect(),
+                ComponentType::U32,
+            )
         };
         let indices = accessor(
             root,
@@ -923,7 +1045,10 @@ fn to_value<T: serde::Serialize>(v: &T) -> Result<Value> {
 /// The RGBA8 fallback image of a texture: channels 0..2 of the summed pyramid sampled at
 /// the finest level's texel centres, clamped to [0, 1] (missing channels are 0), alpha 1.
 pub fn fallback_rgba8(t: &DecodedTexture) -> Result<(u32, u32, Vec<u8>)> {
-    let first = t.levels.first().ok_or_else(|| Error::invalid("texture has no levels"))?;
+    let first = t
+        .levels
+        .first()
+        .ok_or_else(|| Error::invalid("texture has no levels"))?;
     let (w, h) = (first.width, first.height);
     let mut out = Vec::with_capacity(w as usize * h as usize * 4);
     let mut f = vec![0.0f32; t.channels as usize];
@@ -971,14 +1096,26 @@ mod tests {
         assert_eq!(r, [0, 1, 2, 0, 1, 2, 0, 1]);
         let c: Vec<u32> = (-2..5).map(|i| WrapMode::ClampToEdge.wrap(i, 3)).collect();
         assert_eq!(c, [0, 0, 0, 1, 2, 2, 2]);
-        let m: Vec<u32> = (-3..7).map(|i| WrapMode::MirroredRepeat.wrap(i, 3)).collect();
+        let m: Vec<u32> = (-3..7)
+            .map(|i| WrapMode::MirroredRepeat.wrap(i, 3))
+            .collect();
         assert_eq!(m, [2, 1, 0, 0, 1, 2, 2, 1, 0, 0]);
     }
 
     #[test]
     fn sample_sums_levels_and_hits_texel_centres() {
-        let l0 = TextureLevel { width: 2, height: 1, channels: 1, data: vec![1.0, 3.0] };
-        let l1 = TextureLevel { width: 1, height: 1, channels: 1, data: vec![10.0] };
+        let l0 = TextureLevel {
+            width: 2,
+            height: 1,
+            channels: 1,
+            data: vec![1.0, 3.0],
+        };
+        let l1 = TextureLevel {
+            width: 1,
+            height: 1,
+            channels: 1,
+            data: vec![10.0],
+        };
         let t = DecodedTexture {
             channels: 1,
             levels: vec![l0, l1],

@@ -87,7 +87,10 @@ pub fn is_glb(bytes: &[u8]) -> bool {
 /// Splits a `.glb` file into its chunks.
 pub fn parse_glb<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Glb<'a>, Problem> {
     if !is_glb(bytes) {
-        return Err(Problem::invalid("GLB_INVALID_HEADER", "GLB magic is not `glTF`"));
+        return Err(Problem::invalid(
+            "GLB_INVALID_HEADER",
+            "GLB magic is not `glTF`",
+        ));
     }
     Limits::check("GLB size", bytes.len() as u64, limits.max_file_bytes)
         .map_err(|e| Problem::from_error("LIMIT_EXCEEDED", e))?;
@@ -253,8 +256,9 @@ pub fn resolve_buffer(
             })?;
             bin.to_vec()
         }
-        Some(uri) if uri.starts_with("data:") => decode_data_uri(uri, limits)
-            .map_err(|e| Problem::from_error("BUFFER_INVALID", e))?,
+        Some(uri) if uri.starts_with("data:") => {
+            decode_data_uri(uri, limits).map_err(|e| Problem::from_error("BUFFER_INVALID", e))?
+        }
         Some(uri) => {
             let base = base_dir.ok_or_else(|| {
                 Problem::from_error(
@@ -264,7 +268,8 @@ pub fn resolve_buffer(
                     )),
                 )
             })?;
-            read_external(base, uri, limits).map_err(|e| Problem::from_error("BUFFER_INVALID", e))?
+            read_external(base, uri, limits)
+                .map_err(|e| Problem::from_error("BUFFER_INVALID", e))?
         }
     };
     if (data.len() as u64) < declared {
@@ -288,7 +293,10 @@ fn read_external(base: &Path, uri: &str, limits: &Limits) -> Result<Vec<u8>> {
     // Invalid rather than Io: the asset refers to a file that is not there, and the
     // message must name the asset (the caller adds it) as well as the missing file.
     let unreadable = |e: std::io::Error| {
-        Error::invalid(format!("external buffer `{uri}` ({}) cannot be read: {e}", path.display()))
+        Error::invalid(format!(
+            "external buffer `{uri}` ({}) cannot be read: {e}",
+            path.display()
+        ))
     };
     let meta = fs::metadata(&path).map_err(unreadable)?;
     Limits::check("external buffer size", meta.len(), limits.max_buffer_bytes)?;
@@ -378,7 +386,10 @@ fn decode_data_uri(uri: &str, limits: &Limits) -> Result<Vec<u8>> {
 
 /// The `data:` URI for a binary buffer.
 pub fn data_uri(data: &[u8]) -> String {
-    format!("data:application/octet-stream;base64,{}", base64_encode(data))
+    format!(
+        "data:application/octet-stream;base64,{}",
+        base64_encode(data)
+    )
 }
 
 impl Container {
@@ -494,7 +505,11 @@ fn gltf_json_text(root: &gltf_json::Root) -> Result<Vec<u8>> {
 }
 
 /// Bytes of bufferView `view` of `root` over resolved `buffers`, bounds checked.
-pub fn view_bytes<'a>(root: &gltf_json::Root, buffers: &'a [Vec<u8>], view: u32) -> Result<&'a [u8]> {
+pub fn view_bytes<'a>(
+    root: &gltf_json::Root,
+    buffers: &'a [Vec<u8>],
+    view: u32,
+) -> Result<&'a [u8]> {
     let v = root
         .buffer_views
         .get(view as usize)
@@ -557,9 +572,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::invalid(format!("output path {} has no file name", path.display())))?;
+    let name = path.file_name().ok_or_else(|| {
+        Error::invalid(format!("output path {} has no file name", path.display()))
+    })?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(format!(".{}.tmp", std::process::id()));
@@ -592,13 +607,20 @@ mod tests {
 
     #[test]
     fn glb_layout_and_every_prefix() {
-        let glb = glb_bytes(b"{\"asset\":{\"version\":\"2.0\"},\"a\":1}", Some(&[1, 2, 3])).unwrap();
+        let glb = glb_bytes(
+            b"{\"asset\":{\"version\":\"2.0\"},\"a\":1}",
+            Some(&[1, 2, 3]),
+        )
+        .unwrap();
         assert_eq!(glb.len() % 4, 0);
         let parsed = parse_glb(&glb, &Limits::default()).unwrap();
         assert_eq!(parsed.bin.unwrap(), &[1, 2, 3, 0]);
         assert!(parsed.json.ends_with(b"  "));
         for n in 0..glb.len() {
-            assert!(parse_glb(&glb[..n], &Limits::default()).is_err(), "prefix {n}");
+            assert!(
+                parse_glb(&glb[..n], &Limits::default()).is_err(),
+                "prefix {n}"
+            );
         }
         let mut trailing = glb.clone();
         trailing.extend_from_slice(&[0; 4]);

@@ -48,7 +48,8 @@ impl TextureLevel {
         if x >= self.width || y >= self.height || c >= self.channels {
             return None;
         }
-        let i = (y as usize * self.width as usize + x as usize) * self.channels as usize + c as usize;
+        let i =
+            (y as usize * self.width as usize + x as usize) * self.channels as usize + c as usize;
         self.data.get(i).copied()
     }
 }
@@ -136,7 +137,11 @@ pub fn encode_level(
         AnyChannel, AnyChannels, Blocks, Encoding, FlatSamples, Image, Layer, LayerAttributes,
         LineOrder, SmallVec, WritableImage,
     };
-    let (w, h, c) = (level.width as usize, level.height as usize, level.channels as usize);
+    let (w, h, c) = (
+        level.width as usize,
+        level.height as usize,
+        level.channels as usize,
+    );
     if w == 0 || h == 0 || c == 0 {
         return Err(Error::invalid(format!(
             "level {level_index}: size {w}x{h}x{c} has a zero dimension"
@@ -174,7 +179,12 @@ pub fn encode_level(
         blocks: Blocks::ScanLines,
         line_order: LineOrder::Increasing,
     };
-    let layer = Layer::new((w, h), LayerAttributes::default(), encoding, AnyChannels::sort(list));
+    let layer = Layer::new(
+        (w, h),
+        LayerAttributes::default(),
+        encoding,
+        AnyChannels::sort(list),
+    );
     let image = Image::from_layer(layer);
     let mut out = Cursor::new(Vec::new());
     image
@@ -224,7 +234,10 @@ pub fn read_level_header(bytes: &[u8]) -> Result<LevelHeader, Problem> {
         parts: meta.headers.len(),
         width: h.layer_size.0 as u64,
         height: h.layer_size.1 as u64,
-        origin: (h.own_attributes.layer_position.0, h.own_attributes.layer_position.1),
+        origin: (
+            h.own_attributes.layer_position.0,
+            h.own_attributes.layer_position.1,
+        ),
         display: (
             (dw.position.0, dw.position.1),
             (dw.size.0 as u64, dw.size.1 as u64),
@@ -233,7 +246,13 @@ pub fn read_level_header(bytes: &[u8]) -> Result<LevelHeader, Problem> {
             .channels
             .list
             .iter()
-            .map(|c| (c.name.to_string(), c.sample_type, (c.sampling.0, c.sampling.1)))
+            .map(|c| {
+                (
+                    c.name.to_string(),
+                    c.sample_type,
+                    (c.sampling.0, c.sampling.1),
+                )
+            })
             .collect(),
         compression: h.compression,
         tiled: matches!(h.blocks, BlockDescription::Tiles(_)),
@@ -266,7 +285,10 @@ pub fn header_problems(header: &LevelHeader, expect: LevelExpect) -> Vec<Problem
         ));
     }
     if !header.increasing_y {
-        out.push(Problem::invalid("EXR_INVALID", "EXR line order must be increasing Y"));
+        out.push(Problem::invalid(
+            "EXR_INVALID",
+            "EXR line order must be increasing Y",
+        ));
     }
     let (w, h) = (u64::from(expect.width), u64::from(expect.height));
     if header.width != w || header.height != h || header.origin != (0, 0) {
@@ -369,11 +391,27 @@ pub fn decode_level_halves(
     let limit = |what: &str, v: u64, max: u64| {
         Limits::check(what, v, max).map_err(|e| Problem::from_error("LIMIT_EXCEEDED", e))
     };
-    limit("texture side", u64::from(expect.width), u64::from(limits.max_texture_side))?;
-    limit("texture side", u64::from(expect.height), u64::from(limits.max_texture_side))?;
-    limit("texture channels", u64::from(expect.channels), u64::from(limits.max_channels))?;
+    limit(
+        "texture side",
+        u64::from(expect.width),
+        u64::from(limits.max_texture_side),
+    )?;
+    limit(
+        "texture side",
+        u64::from(expect.height),
+        u64::from(limits.max_texture_side),
+    )?;
+    limit(
+        "texture channels",
+        u64::from(expect.channels),
+        u64::from(limits.max_channels),
+    )?;
     let values = u64::from(expect.width) * u64::from(expect.height) * u64::from(expect.channels);
-    limit("texel values of one level", values, limits.max_total_texel_values)?;
+    limit(
+        "texel values of one level",
+        values,
+        limits.max_total_texel_values,
+    )?;
     let header = read_level_header(bytes)?;
     if let Some(p) = header_problems(&header, expect).into_iter().next() {
         return Err(p);
@@ -391,14 +429,21 @@ pub fn decode_level_halves(
     .and_then(|r| r.map_err(|e| e.to_string()))
     .map_err(|e| Problem::invalid("EXR_INVALID", format!("EXR pixels: {e}")))?;
     let channels = &image.layer_data.channel_data.list;
-    let (w, h, c) = (expect.width as usize, expect.height as usize, expect.channels as usize);
+    let (w, h, c) = (
+        expect.width as usize,
+        expect.height as usize,
+        expect.channels as usize,
+    );
     let mut out = vec![f16::ZERO; w * h * c];
     for (ci, channel) in channels.iter().enumerate() {
         let FlatSamples::F16(samples) = &channel.sample_data else {
             return Err(Problem::invalid("EXR_CHANNELS", "EXR channel is not HALF"));
         };
         if samples.len() != w * h || ci >= c {
-            return Err(Problem::invalid("EXR_SIZE_MISMATCH", "EXR channel sample count"));
+            return Err(Problem::invalid(
+                "EXR_SIZE_MISMATCH",
+                "EXR channel sample count",
+            ));
         }
         for (i, &v) in samples.iter().enumerate() {
             out[i * c + ci] = v;
@@ -432,7 +477,11 @@ mod tests {
     #[test]
     fn round_trip_every_compression() {
         let l = level(7, 5, 3);
-        let expect = LevelExpect { width: 7, height: 5, channels: 3 };
+        let expect = LevelExpect {
+            width: 7,
+            height: 5,
+            channels: 3,
+        };
         for c in LevelCompression::ALL {
             let bytes = encode_level(&l, 0, c).unwrap();
             let h = read_level_header(&bytes).unwrap();
@@ -449,7 +498,9 @@ mod tests {
     fn range_errors_name_level_and_channel() {
         let mut l = level(2, 2, 3);
         l.data[5] = 70000.0;
-        let e = encode_level(&l, 2, LevelCompression::Zip).unwrap_err().to_string();
+        let e = encode_level(&l, 2, LevelCompression::Zip)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("level 2") && e.contains("C02"), "{e}");
         l.data[5] = f32::NAN;
         assert!(encode_level(&l, 0, LevelCompression::Zip).is_err());
@@ -460,15 +511,46 @@ mod tests {
     #[test]
     fn header_checked_before_pixels() {
         let bytes = encode_level(&level(4, 4, 2), 0, LevelCompression::Zip).unwrap();
-        let wrong = LevelExpect { width: 4, height: 4, channels: 3 };
-        assert_eq!(decode_level(&bytes, wrong, &Limits::default()).unwrap_err().code, "EXR_CHANNELS");
-        let wrong = LevelExpect { width: 5, height: 4, channels: 2 };
-        assert_eq!(decode_level(&bytes, wrong, &Limits::default()).unwrap_err().code, "EXR_SIZE_MISMATCH");
-        let tight = Limits { max_texture_side: 3, ..Limits::default() };
-        let ok = LevelExpect { width: 4, height: 4, channels: 2 };
-        assert_eq!(decode_level(&bytes, ok, &tight).unwrap_err().code, "LIMIT_EXCEEDED");
+        let wrong = LevelExpect {
+            width: 4,
+            height: 4,
+            channels: 3,
+        };
+        assert_eq!(
+            decode_level(&bytes, wrong, &Limits::default())
+                .unwrap_err()
+                .code,
+            "EXR_CHANNELS"
+        );
+        let wrong = LevelExpect {
+            width: 5,
+            height: 4,
+            channels: 2,
+        };
+        assert_eq!(
+            decode_level(&bytes, wrong, &Limits::default())
+                .unwrap_err()
+                .code,
+            "EXR_SIZE_MISMATCH"
+        );
+        let tight = Limits {
+            max_texture_side: 3,
+            ..Limits::default()
+        };
+        let ok = LevelExpect {
+            width: 4,
+            height: 4,
+            channels: 2,
+        };
+        assert_eq!(
+            decode_level(&bytes, ok, &tight).unwrap_err().code,
+            "LIMIT_EXCEEDED"
+        );
         for n in 0..bytes.len() {
-            assert!(decode_level(&bytes[..n], ok, &Limits::default()).is_err(), "prefix {n}");
+            assert!(
+                decode_level(&bytes[..n], ok, &Limits::default()).is_err(),
+                "prefix {n}"
+            );
         }
     }
 }

@@ -54,7 +54,10 @@ pub fn encode_tensor(name: &str, data: &[f32], dtype: &DType) -> Result<Vec<u8>>
     match dtype {
         DType::F32 => Ok(data.iter().flat_map(|v| v.to_le_bytes()).collect()),
         DType::F16 => {
-            if let Some(i) = data.iter().position(|v| v.abs() > crate::exr_codec::HALF_MAX) {
+            if let Some(i) = data
+                .iter()
+                .position(|v| v.abs() > crate::exr_codec::HALF_MAX)
+            {
                 return Err(Error::invalid(format!(
                     "tensor `{name}` element {i} is {}, beyond the f16 range",
                     data[i]
@@ -71,17 +74,29 @@ pub fn encode_tensor(name: &str, data: &[f32], dtype: &DType) -> Result<Vec<u8>>
 
 /// Decodes exactly `product(shape)` elements of `dtype` from the start of `bytes`,
 /// after checking the count against `limits.max_weight_elements`.
-pub fn decode_tensor(bytes: &[u8], shape: &[u32], dtype: &DType, limits: &Limits) -> Result<Vec<f32>> {
+pub fn decode_tensor(
+    bytes: &[u8],
+    shape: &[u32],
+    dtype: &DType,
+    limits: &Limits,
+) -> Result<Vec<f32>> {
     let size = dtype
         .size_of()
         .ok_or_else(|| Error::not_supported(format!("dtype `{dtype}`")))?;
-    let n = Limits::checked_len("tensor elements", element_count(shape)?, limits.max_weight_elements)?;
+    let n = Limits::checked_len(
+        "tensor elements",
+        element_count(shape)?,
+        limits.max_weight_elements,
+    )?;
     let len = n
         .checked_mul(size)
         .ok_or_else(|| Error::invalid("tensor byte length overflows"))?;
-    let bytes = bytes
-        .get(..len)
-        .ok_or_else(|| Error::invalid(format!("tensor needs {len} bytes, {} available", bytes.len())))?;
+    let bytes = bytes.get(..len).ok_or_else(|| {
+        Error::invalid(format!(
+            "tensor needs {len} bytes, {} available",
+            bytes.len()
+        ))
+    })?;
     Ok(match dtype {
         DType::F16 => bytes
             .chunks_exact(2)
@@ -162,7 +177,10 @@ mod tests {
         assert!(encode_tensor("x", &[70000.0], &DType::F16).is_err());
         assert!(encode_tensor("x", &[70000.0], &DType::F32).is_ok());
         assert!(encode_tensor("x", &[f32::NAN], &DType::F32).is_err());
-        let tight = Limits { max_weight_elements: 2, ..Limits::default() };
+        let tight = Limits {
+            max_weight_elements: 2,
+            ..Limits::default()
+        };
         assert!(matches!(
             decode_tensor(&[0; 12], &[3], &DType::F32, &tight),
             Err(Error::LimitExceeded { .. })

@@ -71,11 +71,20 @@ pub fn rasterize(scene: &Scene, camera: &Camera) -> GBuffer {
 /// Like [`rasterize`], reusing `gbuf`'s allocations (it is resized to the camera's size).
 pub fn rasterize_into(scene: &Scene, camera: &Camera, gbuf: &mut GBuffer) {
     let (w, h) = (camera.width as usize, camera.height as usize);
-    gbuf.reset(w, h);
-    let Some(prep) = Prepared::new(scene, camera) else { return };
+    let Some(prep) = Prepared::new(scene, camera) else {
+        gbuf.reset(w, h);
+        return;
+    };
+    // Every pixel is rewritten below (depth and ids cleared per band, the rest by the
+    // resolve), so a same-sized buffer needs no serial clear.
+    if (gbuf.width, gbuf.height) != (w, h) || !gbuf.is_consistent() {
+        gbuf.reset(w, h);
+    }
     let bands = gbuffer_bands(gbuf, w);
     let bins = &prep.bins;
     bands.into_par_iter().for_each(|mut band| {
+        band.depth.fill(0.0); // holds 1/depth until the resolve
+        band.prim.fill(NONE);
         let list = &bins.items[bins.offsets[band.index]..bins.offsets[band.index + 1]];
         for &t in list {
             draw_depth(&prep.tris[t as usize], &mut band, w);
@@ -156,12 +165,11 @@ fn gbuffer_bands(g: &mut GBuffer, w: usize) -> Vec<Band<'_>> {
 struct SetupTri {
     /// Fixed-point screen positions (x right, y down).
     v: [[i64; 2]; 3],
-    /// Twice the signed area (> 0 after orientation).
-    area2: i64,
     /// Minimum edge value counted as inside: 0 on top-left edges, 1 elsewhere.
     min_e: [i64; 3],
-    /// 1 / view depth at each vertex.
-    inv_z: [f64; 3],
+    /// `(1 / view depth at vertex k) / (twice the area)`: the interpolated 1/depth at a pixel
+    /// is `sum_k e_k * kz[k]` for the pixel's edge values e_k.
+    kz: [f64; 3],
     /// Barycentric coordinates, with respect to the original triangle, of each vertex
     /// (identity unless clipped; rows swapped with the vertices when re-oriented).
     bary: [[f32; 3]; 3],
@@ -474,9 +482,8 @@ fn emit(frame: &Frame, v: &[[i64; 2]; 3], iz: &[f64; 3], b: &[DVec3; 3], prim: u
     let min_e = ed.map(|(i, j)| if is_top_left(v[i], v[j]) { 0 } else { 1 });
     out.push(SetupTri {
         v,
-        area2: area,
         min_e,
-        inv_z: iz,
+        kz: iz.map(|z| z / area as f64),
         bary: b.map(|d| [d.x as f32, d.y as f32, d.z as f32]),
         prim,
         tri,
@@ -495,10 +502,11 @@ fn for_each_inside(t: &SetupTri, y0: usize, y1: usize, mut f: impl FnMut(usize, 
     let ed = [(1usize, 2usize), (2, 0), (0, 1)];
     // Stepping one pixel right adds -(dy) * ONE to each edge function; exact in i64.
     let step = ed.map(|(i, j)| -(t.v[j][1] - t.v[i][1]) * ONE);
-    for py in ys..=ye {
+    // Exclusive ranges: `..=` loops carry an extra exhaustion flag in the hot loop.
+    for py in ys..ye + 1 {
         let p = [x0 as i64 * ONE + HALF, py as i64 * ONE + HALF];
         let mut e = ed.map(|(i, j)| edge(t.v[i], t.v[j], p));
-        for px in x0..=x1 {
+        for px in x0..x1 + 1 {
             if (e[0] - t.min_e[0]) | (e[1] - t.min_e[1]) | (e[2] - t.min_e[2]) >= 0 {
                 f(px, py, e);
             }
@@ -509,25 +517,24 @@ fn for_each_inside(t: &SetupTri, y0: usize, y1: usize, mut f: impl FnMut(usize, 
     }
 }
 
-/// Depth pass: keeps the nearest fragment, storing depth, ids and the perspective-correct
-/// barycentrics (b1, b2) of the original triangle in the uv plane for [`resolve`].
+/// Depth pass: keeps the nearest fragment, storing 1/depth in the depth plane, the ids, and
+/// the perspective-correct barycentrics (b1, b2) of the original triangle times 1/depth in
+/// the uv plane, for [`resolve`] to normalise.
 fn draw_depth(t: &SetupTri, band: &mut Band, w: usize) {
-    let inv_area = 1.0 / t.area2 as f64;
     let y0 = band.y0;
     let depth = &mut *band.depth;
     let uv = &mut *band.uv;
     let prim = &mut *band.prim;
     let tri = &mut *band.tri;
     for_each_inside(t, y0, band.y1, |px, py, e| {
-        let l = [e[0] as f64 * inv_area, e[1] as f64 * inv_area, e[2] as f64 * inv_area];
-        let wgt = [l[0] * t.inv_z[0], l[1] * t.inv_z[1], l[2] * t.inv_z[2]];
-        let s = wgt[0] + wgt[1] + wgt[2];
-        let d = (1.0 / s) as f32;
+        // Perspective-correct weights, not yet normalised: w_k = e_k * kz_k, and their sum is
+        // 1/depth. The test compares 1/depth (nearer = larger), which needs no division.
+        let wgt = [e[0] as f64 * t.kz[0], e[1] as f64 * t.kz[1], e[2] as f64 * t.kz[2]];
+        let inv_depth = (wgt[0] + wgt[1] + wgt[2]) as f32;
         let i = (py - y0) * w + px;
-        if d < depth[i] {
-            depth[i] = d;
-            let r = 1.0 / s;
-            let (s0, s1, s2) = ((wgt[0] * r) as f32, (wgt[1] * r) as f32, (wgt[2] * r) as f32);
+        if inv_depth > depth[i] {
+            depth[i] = inv_depth;
+            let (s0, s1, s2) = (wgt[0] as f32, wgt[1] as f32, wgt[2] as f32);
             let b = &t.bary;
             uv[i] = [s0 * b[0][1] + s1 * b[1][1] + s2 * b[2][1], s0 * b[0][2] + s1 * b[1][2] + s2 * b[2][2]];
             prim[i] = t.prim;
@@ -541,14 +548,21 @@ fn resolve(scene: &Scene, prims: &[PrimInfo], band: &mut Band) {
     for i in 0..band.prim.len() {
         let pi = band.prim[i];
         if pi == NONE {
+            band.coverage[i] = 0.0;
+            band.uv[i] = [0.0; 2];
+            band.tri[i] = NONE;
+            band.depth[i] = f32::INFINITY;
+            band.view_dir[i] = [0.0; 3];
             continue;
         }
         band.coverage[i] = 1.0;
+        let inv_depth = band.depth[i];
+        band.depth[i] = 1.0 / inv_depth;
         let p = &scene.primitives[pi as usize];
         let info = &prims[pi as usize];
         let t = band.tri[i] as usize;
         let ix = [p.indices[3 * t] as usize, p.indices[3 * t + 1] as usize, p.indices[3 * t + 2] as usize];
-        let [b1, b2] = band.uv[i];
+        let [b1, b2] = band.uv[i].map(|b| b / inv_depth);
         band.uv[i] = if info.has_uvs {
             let (u0, u1, u2) = (p.uvs[ix[0]], p.uvs[ix[1]], p.uvs[ix[2]]);
             let uv = u0 + (u1 - u0) * b1 + (u2 - u0) * b2;

@@ -119,10 +119,18 @@ fn activations_match_naive() {
     leaky_relu(&mut y, 0.2);
     let want: Vec<f64> = x.iter().map(|&v| if v >= 0.0 { v as f64 } else { 0.2 * v as f64 }).collect();
     assert_close(&y, &want, RTOL, "leaky relu");
+    // tanh: a dense sweep over [-20, 20] plus tiny values, each within 4 ulp-ish of f64 tanh.
+    let mut x: Vec<f32> = (-20_000..=20_000).map(|i| i as f32 * 1e-3).collect();
+    x.extend([1e-30f32, -1e-20, 1e-8, 0.0, -0.0, 0.6249, 0.625, 0.6251, 9.0, 9.2, 50.0, -1e30]);
     let mut y = x.clone();
     tanh(&mut y);
-    let want: Vec<f64> = x.iter().map(|&v| (v as f64).tanh()).collect();
-    assert_close(&y, &want, RTOL, "tanh");
+    for (&v, &t) in x.iter().zip(&y) {
+        let want = (v as f64).tanh();
+        assert!((t as f64 - want).abs() <= 3e-7 * want.abs() + 1e-38, "tanh({v}) = {t}, want {want}");
+    }
+    let mut nan = [f32::NAN];
+    tanh(&mut nan);
+    assert!(nan[0].is_nan());
 }
 
 #[test]

@@ -460,3 +460,22 @@ fn result_does_not_depend_on_thread_count() {
     assert_eq!(a.depth, b.depth);
     assert_eq!(a.uv.iter().map(|u| u.map(f32::to_bits)).collect::<Vec<_>>(), b.uv.iter().map(|u| u.map(f32::to_bits)).collect::<Vec<_>>());
 }
+
+#[test]
+fn reusing_a_gbuffer_gives_the_same_result_as_a_fresh_one() {
+    let (v, idx) = icosphere(2);
+    let sphere = scene(vec![Primitive { positions: v, indices: idx, world: Mat4::IDENTITY, ..Default::default() }]);
+    let cam = Camera::look_at(Vec3::new(0.2, 0.5, 2.5), Vec3::ZERO, 50.0, 45, 37);
+    let far_cam = Camera::look_at(Vec3::new(0.2, 0.5, 9.0), Vec3::ZERO, 20.0, 45, 37);
+    let mut g = rasterize(&sphere, &cam);
+    for (s, c) in [(&sphere, &far_cam), (&Scene::default(), &cam), (&sphere, &cam)] {
+        dnr_runtime::raster::rasterize_into(s, c, &mut g);
+        let fresh = rasterize(s, c);
+        assert_eq!(g.prim, fresh.prim);
+        assert_eq!(g.tri, fresh.tri);
+        assert_eq!(g.coverage, fresh.coverage);
+        assert_eq!(g.depth, fresh.depth);
+        assert_eq!(g.view_dir, fresh.view_dir);
+        assert_eq!(format!("{:?}", g.uv), format!("{:?}", fresh.uv));
+    }
+}

@@ -42,7 +42,7 @@ fn scene() -> (Renderer, dnr_runtime::camera::Camera) {
     s.object(vec![quad(0.0, 2.0, 0.5, 0.0, Some(mc))], [0.0; 3]); // x 28..36, y 12..20
     s.object(vec![quad(0.0, -2.0, 0.5, 0.0, Some(md))], [0.0; 3]); // x 28..36, y 44..52
     s.object(vec![quad(0.0, 0.0, 0.5, 0.0, Some(mf))], [0.0; 3]); // x 28..36, y 28..36
-    // A core-material quad (no material) in front of the middle of the red quad.
+                                                                  // A core-material quad (no material) in front of the middle of the red quad.
     s.object(vec![quad(-1.5, 0.0, 0.25, 1.0, None)], [0.0; 3]);
     // Renderer 4's only surface is behind the camera.
     s.object(vec![quad(0.0, 0.0, 1.0, 10.0, Some(mg))], [0.0; 3]);
@@ -106,13 +106,26 @@ fn background_without_four_channel_unets_is_transparent() {
     let r1 = s.b.add_renderer(mlp_constant(3, &[0.0, 0.0, 0.0, 5.0]));
     let m0 = s.material(t, r0);
     let m1 = s.material(t, r1);
-    s.object(vec![quad(-1.0, 0.0, 0.5, 0.0, Some(m0)), quad(1.0, 0.0, 0.5, 0.0, Some(m1))], [0.0; 3]);
+    s.object(
+        vec![
+            quad(-1.0, 0.0, 0.5, 0.0, Some(m0)),
+            quad(1.0, 0.0, 0.5, 0.0, Some(m1)),
+        ],
+        [0.0; 3],
+    );
     let renderer = Renderer::from_asset(&s.build()).unwrap();
-    let img = renderer.render(&camera_down_z([0.0, 0.0, 4.0], 32.0, 64, 64), 64, 64).unwrap();
+    let img = renderer
+        .render(&camera_down_z([0.0, 0.0, 4.0], 32.0, 64, 64), 64, 64)
+        .unwrap();
     let covered = img.data.chunks_exact(4).filter(|p| p[3] > 0.0).count();
     assert_eq!(covered, 2 * 8 * 8);
     assert_eq!(px(&img, 0, 0), [0.0; 4]);
-    assert_close(px(&img, 41, 31), [0.5, 0.5, 0.5, unit(5.0)], 1e-6, "mlp pixel");
+    assert_close(
+        px(&img, 41, 31),
+        [0.5, 0.5, 0.5, unit(5.0)],
+        1e-6,
+        "mlp pixel",
+    );
 }
 
 #[test]
@@ -126,7 +139,10 @@ fn bad_gbuffers_are_errors_not_panics() {
     assert!(matches!(renderer.shade(&g), Err(RendererError::GBuffer(_))));
     let mut short = GBuffer::new(4, 4);
     short.uv.pop();
-    assert!(matches!(renderer.shade(&short), Err(RendererError::GBuffer(_))));
+    assert!(matches!(
+        renderer.shade(&short),
+        Err(RendererError::GBuffer(_))
+    ));
     // Non-finite uv and view direction at a covered pixel: F = 0, no NaN in the output.
     let mut g = GBuffer::new(2, 1);
     g.coverage[0] = 1.0;

@@ -47,8 +47,12 @@ fn bilinear(l: &dnr_format::TextureLevel, mode: WrapMode, u: f64, v: f64, c: usi
 
 fn golden(mode: WrapMode) {
     // Values on a 1/8 grid (exact in f16), some outside [0, 1] to exercise the clamp.
-    let l0 = level(4, 4, 3, |x, y, c| ((x * 3 + y * 5 + c * 7) % 11) as f32 / 8.0 - 0.25);
-    let l1 = level(2, 2, 3, |x, y, c| ((x + 2 * y + c) % 3) as f32 / 8.0 - 0.125);
+    let l0 = level(4, 4, 3, |x, y, c| {
+        ((x * 3 + y * 5 + c * 7) % 11) as f32 / 8.0 - 0.25
+    });
+    let l1 = level(2, 2, 3, |x, y, c| {
+        ((x + 2 * y + c) % 3) as f32 / 8.0 - 0.125
+    });
     let mut s = Scene::new();
     s.b.add_neural_texture(texture(vec![l0.clone(), l1.clone()], mode, None));
     s.b.add_renderer(none_renderer(3));
@@ -82,7 +86,11 @@ fn golden(mode: WrapMode) {
                 let want = f.clamp(0.0, 1.0);
                 let err = (got[c] as f64 - want).abs();
                 max_err = max_err.max(err);
-                assert!(err <= 1e-6, "pixel ({x}, {y}) channel {c}: got {}, want {want}", got[c]);
+                assert!(
+                    err <= 1e-6,
+                    "pixel ({x}, {y}) channel {c}: got {}, want {want}",
+                    got[c]
+                );
             }
             assert_eq!(got[3], 1.0, "alpha at ({x}, {y})");
         }
@@ -118,10 +126,14 @@ fn render_at_another_size_scales_the_intrinsics() {
     let cam = camera_down_z([0.0, 0.0, 2.0], 32.0, 64, 64);
     // Half the size: the quad covers pixels 8..24.
     let img = renderer.render(&cam, 32, 32).unwrap();
-    let covered: Vec<(usize, usize)> =
-        (0..32).flat_map(|y| (0..32).map(move |x| (x, y))).filter(|&(x, y)| px(&img, x, y)[3] > 0.0).collect();
+    let covered: Vec<(usize, usize)> = (0..32)
+        .flat_map(|y| (0..32).map(move |x| (x, y)))
+        .filter(|&(x, y)| px(&img, x, y)[3] > 0.0)
+        .collect();
     assert_eq!(covered.len(), 16 * 16);
-    assert!(covered.iter().all(|&(x, y)| (8..24).contains(&x) && (8..24).contains(&y)));
+    assert!(covered
+        .iter()
+        .all(|&(x, y)| (8..24).contains(&x) && (8..24).contains(&y)));
     assert_eq!(px(&img, 10, 10), [0.25, 0.5, 0.75, 1.0]);
 }
 
@@ -135,7 +147,13 @@ fn too_large_frames_are_refused() {
     let renderer = Renderer::from_asset(&s.build()).unwrap();
     let cam = camera_down_z([0.0, 0.0, 2.0], 32.0, 64, 64);
     let e = renderer.render(&cam, 100_000, 100_000).unwrap_err();
-    assert!(matches!(e, dnr_runtime::renderer::RendererError::FrameTooLarge { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            dnr_runtime::renderer::RendererError::FrameTooLarge { .. }
+        ),
+        "{e}"
+    );
     let empty = renderer.render(&cam, 0, 7).unwrap();
     assert!(empty.is_empty());
 }

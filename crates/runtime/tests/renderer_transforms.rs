@@ -26,12 +26,19 @@ fn translated_node_shifts_the_image() {
     // 16 pixels per unit: (0.25, -0.5) moves the quad 4 pixels right and 8 down.
     let cam = camera_down_z([0.0, 0.0, 2.0], 32.0, 64, 64);
     let a = textured_quad([0.0; 3]).render(&cam, 64, 64).unwrap();
-    let b = textured_quad([0.25, -0.5, 0.0]).render(&cam, 64, 64).unwrap();
+    let b = textured_quad([0.25, -0.5, 0.0])
+        .render(&cam, 64, 64)
+        .unwrap();
     assert_ne!(a, b);
     let mut compared = 0;
     for y in 0..56 {
         for x in 0..60 {
-            assert_close(px(&b, x + 4, y + 8), px(&a, x, y), 1e-6, &format!("pixel ({x}, {y})"));
+            assert_close(
+                px(&b, x + 4, y + 8),
+                px(&a, x, y),
+                1e-6,
+                &format!("pixel ({x}, {y})"),
+            );
             compared += (px(&a, x, y)[3] > 0.0) as usize;
         }
     }
@@ -50,12 +57,19 @@ fn sh_quad(node: Node) -> Renderer {
     s.b.add_renderer(none_renderer(4));
     let m = s.material(0, 0);
     let mesh = s.b.add_mesh(None, vec![quad(0.0, 0.0, 1.0, 0.0, Some(m))]);
-    s.b.add_node(Node { mesh: Some(mesh), ..node });
+    s.b.add_node(Node {
+        mesh: Some(mesh),
+        ..node
+    });
     Renderer::from_asset(&s.build()).unwrap()
 }
 
 fn max_diff(a: &RgbaImage, b: &RgbaImage) -> f32 {
-    a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 #[test]
@@ -75,26 +89,60 @@ fn view_dependence_follows_the_node() {
     // rasteriser snaps vertices to 1/256 pixel, which moves the interpolated surface point
     // and so d by up to ~1e-4 of a pixel's angle: hence the tolerance.)
     let d = Vec3::new(0.5 / 32.0, (32.0 - 24.5) / 32.0, -1.0).normalize();
-    assert_close(top, [0.282_094_8, 0.488_602_5 * d.y, -0.488_602_5 * d.z, 1.0], 1e-4, "SH pixel");
+    assert_close(
+        top,
+        [0.282_094_8, 0.488_602_5 * d.y, -0.488_602_5 * d.z, 1.0],
+        1e-4,
+        "SH pixel",
+    );
 
     // Translating object and camera together changes nothing.
     let t = [5.0, -2.0, 1.5];
-    let cam_t = Camera { cam_to_world: Mat4::from_translation(Vec3::from(t)) * base.cam_to_world, ..base };
-    let b = sh_quad(Node { translation: t, ..Node::default() }).render(&cam_t, 64, 64).unwrap();
+    let cam_t = Camera {
+        cam_to_world: Mat4::from_translation(Vec3::from(t)) * base.cam_to_world,
+        ..base
+    };
+    let b = sh_quad(Node {
+        translation: t,
+        ..Node::default()
+    })
+    .render(&cam_t, 64, 64)
+    .unwrap();
     assert!(max_diff(&a, &b) < 1e-5, "translated: {}", max_diff(&a, &b));
 
     // Rotating and uniformly scaling them together changes nothing either.
     let q = Quat::from_axis_angle(Vec3::new(1.0, 2.0, 0.5).normalize(), 0.7);
-    let cam_r = Camera { cam_to_world: Mat4::from_quat(q) * base.cam_to_world, ..base };
-    let node = Node { rotation: q.to_array(), ..Node::default() };
+    let cam_r = Camera {
+        cam_to_world: Mat4::from_quat(q) * base.cam_to_world,
+        ..base
+    };
+    let node = Node {
+        rotation: q.to_array(),
+        ..Node::default()
+    };
     let c = sh_quad(node).render(&cam_r, 64, 64).unwrap();
     assert!(max_diff(&a, &c) < 1e-4, "rotated: {}", max_diff(&a, &c));
 
     // Rotating only the object (a quarter turn about Z: same silhouette) changes the
     // colours, since the direction is taken in the object's frame: local d.y = -world d.x.
     let quarter = Quat::from_rotation_z(std::f32::consts::FRAC_PI_2);
-    let turned = sh_quad(Node { rotation: quarter.to_array(), ..Node::default() }).render(&base, 64, 64).unwrap();
+    let turned = sh_quad(Node {
+        rotation: quarter.to_array(),
+        ..Node::default()
+    })
+    .render(&base, 64, 64)
+    .unwrap();
     let p = px(&turned, 32, 24);
-    assert_close(p, [0.282_094_8, (-0.488_602_5 * d.x).max(0.0), -0.488_602_5 * d.z, 1.0], 1e-4, "turned");
+    assert_close(
+        p,
+        [
+            0.282_094_8,
+            (-0.488_602_5 * d.x).max(0.0),
+            -0.488_602_5 * d.z,
+            1.0,
+        ],
+        1e-4,
+        "turned",
+    );
     assert!((p[1] - top[1]).abs() > 0.05, "{p:?} vs {top:?}");
 }

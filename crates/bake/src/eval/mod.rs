@@ -95,26 +95,47 @@ pub enum EvalError {
 /// frame's photograph, and (with `save`) writes `<save>/<frame>.png`: ground truth | render
 /// | error heat map side by side, both images composited on white. Views are evaluated one
 /// after the other (each render is parallel).
-pub fn evaluate(renderer: &Renderer, frames: &[Frame], save: Option<&Path>) -> Result<EvalReport, EvalError> {
+pub fn evaluate(
+    renderer: &Renderer,
+    frames: &[Frame],
+    save: Option<&Path>,
+) -> Result<EvalReport, EvalError> {
     if let Some(dir) = save {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| EvalError::Save { path: dir.to_path_buf(), message: e.to_string() })?;
+        std::fs::create_dir_all(dir).map_err(|e| EvalError::Save {
+            path: dir.to_path_buf(),
+            message: e.to_string(),
+        })?;
     }
     let mut views = Vec::with_capacity(frames.len());
     for frame in frames {
         let (w, h) = (frame.width(), frame.height());
         let n = w as usize * h as usize;
         if frame.rgb.len() != n * 3 || frame.alpha.len() != n {
-            return Err(EvalError::FrameData { frame: frame.name.clone(), width: w, height: h });
+            return Err(EvalError::FrameData {
+                frame: frame.name.clone(),
+                width: w,
+                height: h,
+            });
         }
         let start = Instant::now();
         let render = renderer
             .render(&frame.camera, w, h)
-            .map_err(|source| EvalError::Render { frame: frame.name.clone(), source })?;
+            .map_err(|source| EvalError::Render {
+                frame: frame.name.clone(),
+                source,
+            })?;
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         let truth = truth_rgba(frame);
-        let truth = Rgba { width: w as usize, height: h as usize, data: &truth };
-        let mine = Rgba { width: render.width, height: render.height, data: &render.data };
+        let truth = Rgba {
+            width: w as usize,
+            height: h as usize,
+            data: &truth,
+        };
+        let mine = Rgba {
+            width: render.width,
+            height: render.height,
+            data: &render.data,
+        };
         let error = view_error(&mine, &truth);
         let image = match save {
             Some(dir) => {
@@ -124,7 +145,14 @@ pub fn evaluate(renderer: &Renderer, frames: &[Frame], save: Option<&Path>) -> R
             }
             None => None,
         };
-        views.push(ViewReport { name: frame.name.clone(), width: w, height: h, error, render_ms, image });
+        views.push(ViewReport {
+            name: frame.name.clone(),
+            width: w,
+            height: h,
+            error,
+            render_ms,
+            image,
+        });
     }
     let mean = mean_of(&views);
     Ok(EvalReport { views, mean })
@@ -160,7 +188,13 @@ fn truth_rgba(frame: &Frame) -> Vec<f32> {
 pub fn frame_file_stem(name: &str) -> String {
     let mut s: String = name
         .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect();
     if s.is_empty() || s.starts_with('.') {
         s.insert(0, '_');
@@ -181,21 +215,34 @@ fn write_comparison(path: &Path, truth: &Rgba, render: &Rgba) -> Result<(), Eval
             let base = y * row;
             out[base + 3 * x..][..3].copy_from_slice(&t[i..i + 3]);
             out[base + 3 * (w + x)..][..3].copy_from_slice(&r[i..i + 3]);
-            let err = (0..3).map(|k| (t[i + k] as f32 - r[i + k] as f32).abs()).sum::<f32>() / 3.0;
+            let err = (0..3)
+                .map(|k| (t[i + k] as f32 - r[i + k] as f32).abs())
+                .sum::<f32>()
+                / 3.0;
             out[base + 3 * (2 * w + x)..][..3].copy_from_slice(&heat(err / HEATMAP_FULL_SCALE));
         }
     }
     let width = u32::try_from(3 * w).ok();
     let height = u32::try_from(h).ok();
     let (Some(width), Some(height)) = (width, height) else {
-        return Err(EvalError::Save { path: path.to_path_buf(), message: "image too large".into() });
+        return Err(EvalError::Save {
+            path: path.to_path_buf(),
+            message: "image too large".into(),
+        });
     };
-    save_png_rgb8(path, width, height, out).map_err(|message| EvalError::Save { path: path.to_path_buf(), message })
+    save_png_rgb8(path, width, height, out).map_err(|message| EvalError::Save {
+        path: path.to_path_buf(),
+        message,
+    })
 }
 
 /// The "hot" colour map: black, red, yellow, white for t = 0, 1/3, 2/3, 1.
 fn heat(t: f32) -> [u8; 3] {
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 1.0 };
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
     let ch = |v: f32| (255.0 * v.clamp(0.0, 1.0) + 0.5) as u8;
     [ch(3.0 * t), ch(3.0 * t - 1.0), ch(3.0 * t - 2.0)]
 }
@@ -203,19 +250,32 @@ fn heat(t: f32) -> [u8; 3] {
 /// Writes an 8-bit RGB PNG atomically: a temporary file beside `path`, then a rename.
 pub fn save_png_rgb8(path: &Path, width: u32, height: u32, rgb: Vec<u8>) -> Result<(), String> {
     let img = image::RgbImage::from_raw(width, height, rgb).ok_or("pixel buffer size")?;
-    save_atomic(path, |tmp| img.save_with_format(tmp, image::ImageFormat::Png).map_err(|e| e.to_string()))
+    save_atomic(path, |tmp| {
+        img.save_with_format(tmp, image::ImageFormat::Png)
+            .map_err(|e| e.to_string())
+    })
 }
 
 /// Writes an 8-bit RGBA PNG of a rendered image atomically.
 pub fn save_png_rgba(path: &Path, img: &RgbaImage) -> Result<(), String> {
-    let (w, h) = (u32::try_from(img.width).map_err(|e| e.to_string())?, u32::try_from(img.height).map_err(|e| e.to_string())?);
+    let (w, h) = (
+        u32::try_from(img.width).map_err(|e| e.to_string())?,
+        u32::try_from(img.height).map_err(|e| e.to_string())?,
+    );
     let buf = image::RgbaImage::from_raw(w, h, img.to_rgba8()).ok_or("pixel buffer size")?;
-    save_atomic(path, |tmp| buf.save_with_format(tmp, image::ImageFormat::Png).map_err(|e| e.to_string()))
+    save_atomic(path, |tmp| {
+        buf.save_with_format(tmp, image::ImageFormat::Png)
+            .map_err(|e| e.to_string())
+    })
 }
 
 /// Runs `write` on a temporary path in `path`'s folder, then renames it to `path`.
 fn save_atomic(path: &Path, write: impl FnOnce(&Path) -> Result<(), String>) -> Result<(), String> {
-    let name = path.file_name().ok_or("no file name")?.to_string_lossy().into_owned();
+    let name = path
+        .file_name()
+        .ok_or("no file name")?
+        .to_string_lossy()
+        .into_owned();
     let tmp = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
     let result = write(&tmp).and_then(|()| std::fs::rename(&tmp, path).map_err(|e| e.to_string()));
     if result.is_err() {

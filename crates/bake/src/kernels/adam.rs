@@ -26,14 +26,37 @@ impl Default for AdamConfig {
 /// Elements per parallel chunk (fixed, so results do not depend on the thread count).
 const CHUNK: usize = 1 << 14;
 
-/// One Adam update of a single value with bias-correction factors `bc1 = 1 - beta1^t`,
+/// The per-step constants of an Adam update: `step_size = lr / (1 - beta1^t)` and
 /// `bc2_sqrt = sqrt(1 - beta2^t)`.
-#[inline]
-fn update(p: &mut f32, g: f32, m: &mut f32, v: &mut f32, cfg: &AdamConfig, lr: f32, bc1: f32, bc2_sqrt: f32) {
-    *m = cfg.beta1 * *m + (1.0 - cfg.beta1) * g;
-    *v = cfg.beta2 * *v + (1.0 - cfg.beta2) * g * g;
-    let denom = v.sqrt() / bc2_sqrt + cfg.eps;
-    *p -= (lr / bc1) * *m / denom;
+#[derive(Clone, Copy)]
+struct StepConsts {
+    beta1: f32,
+    beta2: f32,
+    eps: f32,
+    step_size: f32,
+    bc2_sqrt: f32,
+}
+
+impl StepConsts {
+    fn new(cfg: &AdamConfig, t: u64) -> Self {
+        let t = t.min(i32::MAX as u64) as i32;
+        StepConsts {
+            beta1: cfg.beta1,
+            beta2: cfg.beta2,
+            eps: cfg.eps,
+            step_size: cfg.lr / (1.0 - cfg.beta1.powi(t)),
+            bc2_sqrt: (1.0 - cfg.beta2.powi(t)).sqrt(),
+        }
+    }
+
+    /// One Adam update of a single value (PyTorch's order of operations).
+    #[inline]
+    fn update(&self, p: &mut f32, g: f32, m: &mut f32, v: &mut f32) {
+        *m = self.beta1 * *m + (1.0 - self.beta1) * g;
+        *v = self.beta2 * *v + (1.0 - self.beta2) * g * g;
+        let denom = v.sqrt() / self.bc2_sqrt + self.eps;
+        *p -= self.step_size * *m / denom;
+    }
 }
 
 /// Adam state of one dense parameter group (its own step count and learning rate).
@@ -61,20 +84,21 @@ impl Adam {
     pub fn step(&mut self, params: &mut [f32], grads: &[f32]) {
         assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "adam: length");
         self.t += 1;
-        let cfg = self.cfg;
-        let bc1 = 1.0 - cfg.beta1.powi(self.t.min(i32::MAX as u64) as i32);
-        let bc2_sqrt = (1.0 - cfg.beta2.powi(self.t.min(i32::MAX as u64) as i32)).sqrt();
+        let k = StepConsts::new(&self.cfg, self.t);
         params
             .par_chunks_mut(CHUNK)
             .zip(grads.par_chunks(CHUNK))
             .zip(self.m.par_chunks_mut(CHUNK).zip(self.v.par_chunks_mut(CHUNK)))
             .for_each(|((p, g), (m, v))| {
                 for i in 0..p.len() {
-                    update(&mut p[i], g[i], &mut m[i], &mut v[i], &cfg, cfg.lr, bc1, bc2_sqrt);
+                    k.update(&mut p[i], g[i], &mut m[i], &mut v[i]);
                 }
             });
     }
 }
+
+/// One row's parameter, gradient, first and second moment, and step count.
+type RowRefs<'a> = (&'a mut [f32], &'a mut [f32], &'a mut [f32], &'a mut [f32], &'a mut u32);
 
 /// Lazy Adam over rows of `width` values (texels of a neural texture): a step updates only the
 /// rows it is given, and each row keeps its own step count for the bias correction.
@@ -119,7 +143,7 @@ impl SparseAdam {
         order.sort_unstable();
         assert!(order.windows(2).all(|p| p[0] != p[1]), "sparse adam: duplicate row");
         assert!(order.last().is_none_or(|&r| (r as usize) < nrows), "sparse adam: row out of range");
-        let mut work: Vec<(&mut [f32], &mut [f32], &mut [f32], &mut [f32], &mut u32)> = Vec::with_capacity(order.len());
+        let mut work: Vec<RowRefs<'_>> = Vec::with_capacity(order.len());
         {
             let mut p_rest = &mut params[..];
             let mut g_rest = &mut grads[..];
@@ -147,12 +171,10 @@ impl SparseAdam {
         work.par_chunks_mut(1024).for_each(|chunk| {
             for (p, g, m, v, t) in chunk.iter_mut() {
                 **t += 1;
-                let ti = (**t).min(i32::MAX as u32) as i32;
-                let bc1 = 1.0 - cfg.beta1.powi(ti);
-                let bc2_sqrt = (1.0 - cfg.beta2.powi(ti)).sqrt();
+                let k = StepConsts::new(&cfg, u64::from(**t));
                 for i in 0..p.len() {
                     let gi = g[i] + decay * p[i];
-                    update(&mut p[i], gi, &mut m[i], &mut v[i], &cfg, cfg.lr, bc1, bc2_sqrt);
+                    k.update(&mut p[i], gi, &mut m[i], &mut v[i]);
                     g[i] = 0.0;
                 }
             }

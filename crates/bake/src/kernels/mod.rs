@@ -10,5 +10,7 @@ pub mod conv_transpose;
 pub mod dense;
 pub mod loss;
 pub mod norm;
+pub mod sample;
+pub mod sh;
 pub mod unet;
 pub mod upsample;

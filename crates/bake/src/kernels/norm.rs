@@ -2,6 +2,7 @@
 //! `dnr_runtime::nn::norm::instance_norm`, which returns the statistics kept here.
 
 use dnr_runtime::nn::norm::NormStats;
+use dnr_runtime::nn::tensor::par_min_items;
 use dnr_runtime::nn::Tensor;
 use rayon::prelude::*;
 
@@ -14,7 +15,7 @@ pub fn instance_norm_backward(y: &Tensor, stats: &NormStats, g: &mut Tensor) {
     if n == 0 {
         return;
     }
-    g.data.par_chunks_mut(n).zip(y.data.par_chunks(n)).enumerate().for_each(|(c, (gp, yp))| {
+    g.data.par_chunks_mut(n).zip(y.data.par_chunks(n)).with_min_len(par_min_items(n)).enumerate().for_each(|(c, (gp, yp))| {
         let (mut s, mut sy) = (0.0f64, 0.0f64);
         for (&gv, &yv) in gp.iter().zip(yp) {
             s += gv as f64;

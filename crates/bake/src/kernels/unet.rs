@@ -4,15 +4,16 @@
 
 use super::activation::{leaky_relu_backward, tanh_backward};
 use super::concat::concat_backward;
-use super::conv::{conv_backward, conv_forward, ConvCache};
-use super::conv_transpose::{conv_transpose_backward, conv_transpose_forward, TconvCache};
+use super::conv::{conv_backward, conv_forward, conv_forward_act, ConvCache};
+use super::conv_transpose::{conv_transpose_backward, conv_transpose_forward_act, TconvCache};
 use super::norm::instance_norm_backward;
 use super::upsample::upsample_nearest2_backward;
 use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
 use dnr_runtime::network::{check_no_extra, fetch_tensors, map_lookup, NetworkError};
-use dnr_runtime::nn::activation::{leaky_relu, tanh, LEAKY_SLOPE};
-use dnr_runtime::nn::norm::{instance_norm, NormStats};
-use dnr_runtime::nn::upsample::upsample_nearest2;
+use dnr_runtime::nn::activation::{tanh, Act, LEAKY_SLOPE};
+use dnr_runtime::nn::norm::{instance_norm, normalize, NormStats};
+use dnr_runtime::nn::upsample::upsample_nearest2_concat;
+use dnr_runtime::nn::tensor::pool;
 use dnr_runtime::nn::{NnError, Tensor};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -33,7 +34,7 @@ pub struct UNetActs {
     h: usize,
     w: usize,
     enc: Vec<ConvCache>,
-    /// Normalised (pre-activation) outputs of encoders and decoders 1..D-1.
+    /// Normalised outputs before LeakyReLU (`z`) of encoders and decoders 1..D-1.
     enc_z: Vec<Tensor>,
     enc_stats: Vec<Option<NormStats>>,
     /// Indexed by decoder level; `None` at level 0 for z/stats.
@@ -42,6 +43,23 @@ pub struct UNetActs {
     dec_stats: Vec<Option<NormStats>>,
     /// Network output after tanh on the padded frame.
     out: Tensor,
+}
+
+impl Drop for UNetActs {
+    /// Hands every large buffer back to the runtime's pool for the next step.
+    fn drop(&mut self) {
+        for c in self.enc.drain(..) {
+            pool::recycle(c.buf);
+        }
+        for c in self.dec.drain(..).flatten() {
+            match c {
+                UpCache::Tconv(t) => pool::recycle(t.buf),
+                UpCache::UpConv { conv, .. } => pool::recycle(conv.buf),
+            }
+        }
+        self.enc_z.drain(..).chain(self.dec_z.drain(..).flatten()).for_each(Tensor::recycle);
+        std::mem::replace(&mut self.out, Tensor { c: 0, h: 0, w: 0, data: Vec::new() }).recycle();
+    }
 }
 
 /// U-Net weights with gradient accumulators, in [`UNetParams::tensor_specs`] order
@@ -121,7 +139,8 @@ impl UNetTrain {
     }
 
     /// Forward on a `in_ch x H x W` feature image: output after tanh (`out_ch x H x W`) and the
-    /// activations for backward. Pads to a multiple of 2^D like the runtime.
+    /// activations for backward. Pads to a multiple of 2^D like the runtime; like the runtime,
+    /// activations are kept before their LeakyReLU and the consumer applies it on read.
     pub fn forward(&self, x: &Tensor) -> Result<(Tensor, UNetActs), NnError> {
         let p = &self.params;
         if x.c != p.in_ch || x.h == 0 || x.w == 0 {
@@ -129,47 +148,58 @@ impl UNetTrain {
         }
         let d = p.depth();
         let (hp, wp) = p.padded_size(x.h, x.w);
-        let mut cur = x.pad_bottom_right(hp, wp);
-        let (mut enc, mut enc_z, mut enc_stats, mut skips) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let lrelu = Act::LeakyRelu(LEAKY_SLOPE);
+        let norm = p.norm == Norm::Instance;
+        let (mut enc, mut enc_z, mut enc_stats) = (Vec::new(), Vec::<Tensor>::new(), Vec::new());
         for i in 0..d {
             let (w, b) = self.enc_w(i);
-            let (mut y, cache) = conv_forward(&cur, w, b, p.encoder_geom(i))?;
-            enc_stats.push(self.norm(&mut y));
-            enc_z.push(y.clone());
-            leaky_relu(&mut y.data, LEAKY_SLOPE);
+            let (src, act, size) = match enc_z.last() {
+                None => (x, Act::Identity, (hp, wp)),
+                Some(prev) => (prev, lrelu, (prev.h, prev.w)),
+            };
+            let (mut y, stats, cache) = conv_forward_act(src, act, size, w, b, p.encoder_geom(i), norm)?;
+            if let Some(st) = &stats {
+                normalize(&mut y, st);
+            }
             enc.push(cache);
-            skips.push(y.clone());
-            cur = y;
+            enc_z.push(y);
+            enc_stats.push(stats);
         }
         let mut dec: Vec<Option<UpCache>> = (0..d).map(|_| None).collect();
         let mut dec_z: Vec<Option<Tensor>> = (0..d).map(|_| None).collect();
         let mut dec_stats: Vec<Option<NormStats>> = (0..d).map(|_| None).collect();
-        let mut cur = skips.pop().expect("depth >= 1");
         for i in (0..d).rev() {
             let (w, b) = self.dec_w(i);
             let (_, co) = p.decoder_channels(i);
+            let cur = if i == d - 1 { &enc_z[d - 1] } else { dec_z[i + 1].as_ref().expect("decoder above") };
+            let mut parts = vec![cur];
+            if i < d - 1 {
+                parts.push(&enc_z[i]);
+            }
+            let out_act = if i == 0 { Act::Tanh } else { Act::Identity };
             let (mut y, cache) = match p.decoder {
                 Decoder::TransposedConv => {
-                    let (y, c) = conv_transpose_forward(&cur, w, b, co)?;
+                    let (y, c) = conv_transpose_forward_act(&parts, lrelu, w, b, co, out_act)?;
                     (y, UpCache::Tconv(c))
                 }
                 Decoder::UpsampleConv => {
-                    let u = upsample_nearest2(&cur);
-                    let (y, c) = conv_forward(&u, w, b, p.decoder_geom(i))?;
-                    (y, UpCache::UpConv { h: cur.h, w: cur.w, conv: c })
+                    let (h, ww) = (cur.h, cur.w);
+                    let u = upsample_nearest2_concat(&parts, lrelu);
+                    let (mut y, c) = conv_forward(&u, w, b, p.decoder_geom(i))?;
+                    if i == 0 {
+                        tanh(&mut y.data);
+                    }
+                    (y, UpCache::UpConv { h, w: ww, conv: c })
                 }
             };
             dec[i] = Some(cache);
             if i == 0 {
-                tanh(&mut y.data);
                 let out = y.crop_top_left(x.h, x.w);
                 let acts = UNetActs { h: x.h, w: x.w, enc, enc_z, enc_stats, dec, dec_z, dec_stats, out: y };
                 return Ok((out, acts));
             }
             dec_stats[i] = self.norm(&mut y);
-            dec_z[i] = Some(y.clone());
-            leaky_relu(&mut y.data, LEAKY_SLOPE);
-            cur = y.concat(&skips.pop().expect("skip per level"))?;
+            dec_z[i] = Some(y);
         }
         unreachable!("the decoder loop returns at level 0")
     }
@@ -182,10 +212,10 @@ impl UNetTrain {
         assert!(dout.c == p.out_ch && dout.h == acts.h && dout.w == acts.w, "U-Net backward: dout shape");
         let mut g = dout.pad_bottom_right(acts.out.h, acts.out.w);
         tanh_backward(&acts.out.data, &mut g.data);
-        // Gradients of the encoder outputs (after activation), filled by skips and the chain.
+        // Gradients w.r.t. the activated encoder outputs lrelu(z_i), from skips and the chain.
         let mut de: Vec<Tensor> = acts.enc_z.iter().map(|z| Tensor::zeros(z.c, z.h, z.w)).collect();
         for i in 0..d {
-            // g = dL/d(output of up_i) (pre-norm for i > 0, after the caller's chain).
+            // g = dL/d(output of up_i before norm), after the chain rule through norm and act.
             if i > 0 {
                 let z = acts.dec_z[i].as_ref().expect("decoder activations");
                 leaky_relu_backward(&z.data, &mut g.data, LEAKY_SLOPE);
@@ -199,11 +229,13 @@ impl UNetTrain {
             self.up_backward(i, acts.dec[i].as_ref().expect("decoder cache"), &g, &mut dx);
             if i == d - 1 {
                 de[d - 1].data.iter_mut().zip(&dx.data).for_each(|(a, b)| *a += b);
+                dx.recycle();
             } else {
                 // dx = d concat(a_(i+1), e_i): decoder part first, then the skip.
                 let mut da = Tensor::zeros(ci - p.widths[i], in_hw.0, in_hw.1);
                 concat_backward(&dx, &mut da, &mut de[i]);
-                g = da;
+                dx.recycle();
+                std::mem::replace(&mut g, da).recycle();
             }
         }
         let mut dinput = Tensor::zeros(p.in_ch, acts.out.h, acts.out.w);
@@ -217,8 +249,15 @@ impl UNetTrain {
             let (gw, gb) = two_mut(&mut self.grads, wi, bi);
             let target = if i == 0 { &mut dinput } else { &mut de[i - 1] };
             conv_backward(&acts.enc[i], &self.weights[wi], &gi, gw, gb, Some(target));
+            gi.recycle();
         }
-        dinput.crop_top_left(acts.h, acts.w)
+        g.recycle();
+        if (acts.h, acts.w) == (dinput.h, dinput.w) {
+            return dinput;
+        }
+        let out = dinput.crop_top_left(acts.h, acts.w);
+        dinput.recycle();
+        out
     }
 
     fn up_backward(&mut self, i: usize, cache: &UpCache, g: &Tensor, dx: &mut Tensor) {
@@ -232,6 +271,7 @@ impl UNetTrain {
                 let mut du = Tensor::zeros(dx.c, 2 * h, 2 * ww);
                 conv_backward(conv, w, g, gw, gb, Some(&mut du));
                 upsample_nearest2_backward(&du, dx);
+                du.recycle();
             }
         }
     }

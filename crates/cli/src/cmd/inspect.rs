@@ -88,8 +88,10 @@ struct Bytes {
 pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
     let path = &args.file;
     let limits = Limits::default();
-    let container = Container::read(path, &limits).with_context(|| format!("cannot read {}", path.display()))?;
-    let summary = summarize(&container, path).with_context(|| format!("cannot inspect {}", path.display()))?;
+    let container = Container::read(path, &limits)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    let summary = summarize(&container, path)
+        .with_context(|| format!("cannot inspect {}", path.display()))?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
@@ -101,7 +103,11 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
 fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
     let root = &c.root;
     let file_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
-    let view_len = |v: u32| root.buffer_views.get(v as usize).map_or(0, |v| v.byte_length.0);
+    let view_len = |v: u32| {
+        root.buffer_views
+            .get(v as usize)
+            .map_or(0, |v| v.byte_length.0)
+    };
 
     let mut counted: BTreeSet<u32> = BTreeSet::new();
     let mut mesh = 0u64;
@@ -126,7 +132,9 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
             primitives += 1;
             if let Some(a) = p
                 .attributes
-                .get(&gltf_json::validation::Checked::Valid(gltf_json::mesh::Semantic::Positions))
+                .get(&gltf_json::validation::Checked::Valid(
+                    gltf_json::mesh::Semantic::Positions,
+                ))
                 .and_then(|i| root.accessors.get(i.value()))
             {
                 vertices += a.count.0;
@@ -138,7 +146,9 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
     }
 
     let ext: Option<Extension> = match root_extension_value(root) {
-        Some(v) => Some(serde_json::from_value(v.clone()).context("the extension object does not parse")?),
+        Some(v) => {
+            Some(serde_json::from_value(v.clone()).context("the extension object does not parse")?)
+        }
         None => None,
     };
     let mut textures = Vec::new();
@@ -147,7 +157,9 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
     if let Some(ext) = &ext {
         for t in &ext.neural_textures {
             let sampler = t.sampler.and_then(|s| root.samplers.get(s as usize));
-            let wrap = |w: Option<&gltf_json::validation::Checked<gltf_json::texture::WrappingMode>>| match w {
+            let wrap = |w: Option<
+                &gltf_json::validation::Checked<gltf_json::texture::WrappingMode>,
+            >| match w {
                 Some(gltf_json::validation::Checked::Valid(m)) => format!("{m:?}"),
                 Some(_) => "invalid".to_string(),
                 None => "Repeat".to_string(),
@@ -163,10 +175,17 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
                     .ok()
                     .and_then(|b| read_level_header(b).ok())
                     .map_or("unreadable".to_string(), |h| {
-                        LevelCompression::from_exr(h.compression)
-                            .map_or_else(|| format!("{:?} (not allowed)", h.compression), |c| c.name().to_string())
+                        LevelCompression::from_exr(h.compression).map_or_else(
+                            || format!("{:?} (not allowed)", h.compression),
+                            |c| c.name().to_string(),
+                        )
                     });
-                levels.push(LevelSummary { width: l.width, height: l.height, compression, bytes });
+                levels.push(LevelSummary {
+                    width: l.width,
+                    height: l.height,
+                    compression,
+                    bytes,
+                });
             }
             textures.push(TextureSummary {
                 channels: t.channels,
@@ -220,13 +239,16 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
     }
     let all_views: u64 = root.buffer_views.iter().map(|v| v.byte_length.0).sum();
     let counted_total: u64 = counted.iter().map(|&v| view_len(v)).sum();
-    let json_bytes = serde_json::to_vec(root).map(|v| v.len() as u64).unwrap_or(0);
+    let json_bytes = serde_json::to_vec(root)
+        .map(|v| v.len() as u64)
+        .unwrap_or(0);
     let materials = root
         .materials
         .iter()
         .enumerate()
         .filter_map(|(i, m)| {
-            let e: MaterialExtension = serde_json::from_value(material_extension_value(m)?.clone()).ok()?;
+            let e: MaterialExtension =
+                serde_json::from_value(material_extension_value(m)?.clone()).ok()?;
             Some(MaterialSummary {
                 index: i,
                 name: m.name.clone(),
@@ -259,7 +281,12 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
 }
 
 fn print_text(s: &Summary) {
-    println!("{} ({} bytes, generator {})", s.file, s.file_bytes, s.generator.as_deref().unwrap_or("-"));
+    println!(
+        "{} ({} bytes, generator {})",
+        s.file,
+        s.file_bytes,
+        s.generator.as_deref().unwrap_or("-")
+    );
     println!(
         "meshes: {} ({} primitives, {} vertices, {} triangles)",
         s.meshes, s.primitives, s.vertices, s.triangles
@@ -284,7 +311,10 @@ fn print_text(s: &Summary) {
             t.view_dependence.as_deref().unwrap_or("none")
         );
         for (li, l) in t.levels.iter().enumerate() {
-            println!("  level {li}: {}x{} {} ({} bytes)", l.width, l.height, l.compression, l.bytes);
+            println!(
+                "  level {li}: {}x{} {} ({} bytes)",
+                l.width, l.height, l.compression, l.bytes
+            );
         }
     }
     for (i, r) in s.renderers.iter().enumerate() {
@@ -296,7 +326,11 @@ fn print_text(s: &Summary) {
             r.parameters,
             r.tensors,
             r.parameter_count,
-            if r.dtypes.is_empty() { "-".to_string() } else { r.dtypes.join("/") },
+            if r.dtypes.is_empty() {
+                "-".to_string()
+            } else {
+                r.dtypes.join("/")
+            },
             r.weight_bytes
         );
     }

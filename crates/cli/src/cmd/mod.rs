@@ -2,3 +2,7 @@
 
 pub mod inspect;
 pub mod validate;
+
+// render / eval (renderer engineer)
+pub mod eval;
+pub mod render;

@@ -77,8 +77,8 @@ struct Report {
 /// Renders and writes the PNGs.
 pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
-    let renderer =
-        Renderer::from_path(&args.asset).with_context(|| format!("cannot load {}", args.asset.display()))?;
+    let renderer = Renderer::from_path(&args.asset)
+        .with_context(|| format!("cannot load {}", args.asset.display()))?;
     let load_ms = ms(start);
 
     // (name, camera, output file)
@@ -89,7 +89,14 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
                 .with_context(|| format!("cannot create {}", args.output.display()))?;
             frames
                 .iter()
-                .map(|f| (f.name.clone(), f.camera, args.output.join(format!("{}.png", frame_file_stem(&f.name)))))
+                .map(|f| {
+                    (
+                        f.name.clone(),
+                        f.camera,
+                        args.output
+                            .join(format!("{}.png", frame_file_stem(&f.name))),
+                    )
+                })
                 .collect()
         }
         (None, Some(spec)) => {
@@ -102,7 +109,8 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
                 bail!("--look-at: eye and target coincide");
             }
             if let Some(parent) = args.output.parent().filter(|p| !p.as_os_str().is_empty()) {
-                std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+                std::fs::create_dir_all(parent)
+                    .with_context(|| format!("cannot create {}", parent.display()))?;
             }
             // `look_at` takes glam vectors; `into` converts the arrays (no glam dependency here).
             let cam = Camera::look_at(eye.into(), target.into(), args.fov, w, h);
@@ -117,9 +125,12 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
         let g = rasterize(renderer.scene(), &cam);
         let raster_ms = ms(t0);
         let t1 = Instant::now();
-        let img = renderer.shade(&g).with_context(|| format!("cannot render `{name}`"))?;
+        let img = renderer
+            .shade(&g)
+            .with_context(|| format!("cannot render `{name}`"))?;
         let shade_ms = ms(t1);
-        save_png_rgba(&path, &img).map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+        save_png_rgba(&path, &img)
+            .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
         let view = ViewTiming {
             name,
             file: path.display().to_string(),
@@ -144,10 +155,18 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
         views.iter().map(|v| v.total_ms).sum::<f64>() / views.len() as f64
     };
     if args.json {
-        let report = Report { asset: args.asset.display().to_string(), load_ms, views, mean_total_ms };
+        let report = Report {
+            asset: args.asset.display().to_string(),
+            load_ms,
+            views,
+            mean_total_ms,
+        };
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        println!("{} view(s), mean {mean_total_ms:.1} ms per view (asset loaded in {load_ms:.0} ms)", views.len());
+        println!(
+            "{} view(s), mean {mean_total_ms:.1} ms per view (asset loaded in {load_ms:.0} ms)",
+            views.len()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -157,8 +176,12 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
 /// The capture's own proxy mesh is not needed (the asset has the geometry), so the asset
 /// is given as the mesh: the capture loads even without one.
 pub fn load_frames(dir: &Path, asset: &Path, split: Split) -> anyhow::Result<Vec<Frame>> {
-    let opts = LoadOptions { mesh: Some(asset.to_path_buf()), ..LoadOptions::default() };
-    let capture = Capture::load(dir, &opts).with_context(|| format!("cannot load capture {}", dir.display()))?;
+    let opts = LoadOptions {
+        mesh: Some(asset.to_path_buf()),
+        ..LoadOptions::default()
+    };
+    let capture = Capture::load(dir, &opts)
+        .with_context(|| format!("cannot load capture {}", dir.display()))?;
     for w in &capture.warnings {
         eprintln!("dnr: warning: {w}");
     }
@@ -191,7 +214,11 @@ fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
         .split_once(['x', 'X'])
         .and_then(|(w, h)| Some((w.trim().parse::<u32>().ok()?, h.trim().parse::<u32>().ok()?)));
     match parsed {
-        Some((w, h)) if w > 0 && h > 0 && u64::from(w) * u64::from(h) <= dnr_runtime::renderer::MAX_PIXELS => {
+        Some((w, h))
+            if w > 0
+                && h > 0
+                && u64::from(w) * u64::from(h) <= dnr_runtime::renderer::MAX_PIXELS =>
+        {
             Ok((w, h))
         }
         _ => bail!(

@@ -43,7 +43,11 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
                 Severity::Warning => "warning",
                 Severity::Info => "info",
             };
-            let at = if i.pointer.is_empty() { "(file)" } else { &i.pointer };
+            let at = if i.pointer.is_empty() {
+                "(file)"
+            } else {
+                &i.pointer
+            };
             println!("{sev} {} at {at}: {}", i.code, i.message);
         }
         println!(
@@ -52,5 +56,9 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
             if errors == 0 { "valid" } else { "INVALID" }
         );
     }
-    Ok(if errors == 0 { ExitCode::SUCCESS } else { ExitCode::from(1) })
+    Ok(if errors == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
 }

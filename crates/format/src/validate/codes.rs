@@ -26,7 +26,11 @@ pub struct CodeInfo {
 }
 
 const fn row(code: &'static str, severity: Severity, meaning: &'static str) -> CodeInfo {
-    CodeInfo { code, severity, meaning }
+    CodeInfo {
+        code,
+        severity,
+        meaning,
+    }
 }
 
 use Severity::{Error as E, Warning as W};
@@ -83,7 +87,10 @@ mod tests {
     #[test]
     fn codes_are_unique_and_upper_snake() {
         for (i, c) in CODES.iter().enumerate() {
-            assert!(c.code.bytes().all(|b| b.is_ascii_uppercase() || b == b'_' || b.is_ascii_digit()));
+            assert!(c
+                .code
+                .bytes()
+                .all(|b| b.is_ascii_uppercase() || b == b'_' || b.is_ascii_digit()));
             assert!(CODES[..i].iter().all(|d| d.code != c.code), "{}", c.code);
         }
     }

@@ -48,7 +48,10 @@ pub struct Report {
 impl Report {
     /// Number of issues of `severity`.
     pub fn count(&self, severity: Severity) -> usize {
-        self.issues.iter().filter(|i| i.severity == severity).count()
+        self.issues
+            .iter()
+            .filter(|i| i.severity == severity)
+            .count()
     }
 
     /// Whether any issue is an error.
@@ -79,16 +82,25 @@ enum Seg<'a> {
 
 impl<'a> Ptr<'a> {
     /// The document root (`""`).
-    pub const ROOT: Ptr<'static> = Ptr { parent: None, seg: Seg::Root };
+    pub const ROOT: Ptr<'static> = Ptr {
+        parent: None,
+        seg: Seg::Root,
+    };
 
     /// Child `key` of this object.
     pub fn key(&'a self, key: &'a str) -> Ptr<'a> {
-        Ptr { parent: Some(self), seg: Seg::Key(key) }
+        Ptr {
+            parent: Some(self),
+            seg: Seg::Key(key),
+        }
     }
 
     /// Element `index` of this array.
     pub fn index(&'a self, index: usize) -> Ptr<'a> {
-        Ptr { parent: Some(self), seg: Seg::Index(index) }
+        Ptr {
+            parent: Some(self),
+            seg: Seg::Index(index),
+        }
     }
 
     /// Renders the pointer, escaping `~` and `/` as RFC 6901 requires.
@@ -171,7 +183,12 @@ impl Ctx<'_> {
 
     fn report_at(&mut self, code: &'static str, pointer: String, message: impl Into<String>) {
         let severity = code_info(code).map_or(Severity::Error, |c| c.severity);
-        self.issues.push(Issue { code, severity, pointer, message: message.into() });
+        self.issues.push(Issue {
+            code,
+            severity,
+            pointer,
+            message: message.into(),
+        });
     }
 
     fn problem(&mut self, p: Problem, ptr: &Ptr<'_>) {
@@ -186,11 +203,18 @@ impl Ctx<'_> {
 pub fn validate_file(path: &Path, limits: &Limits) -> Result<Report> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if meta.len() > limits.max_file_bytes {
-        let mut ctx = Ctx { limits, issues: Vec::new() };
+        let mut ctx = Ctx {
+            limits,
+            issues: Vec::new(),
+        };
         ctx.report(
             "LIMIT_EXCEEDED",
             &Ptr::ROOT,
-            format!("file is {} bytes, above the limit of {}", meta.len(), limits.max_file_bytes),
+            format!(
+                "file is {} bytes, above the limit of {}",
+                meta.len(),
+                limits.max_file_bytes
+            ),
         );
         return Ok(Report { issues: ctx.issues });
     }
@@ -200,7 +224,10 @@ pub fn validate_file(path: &Path, limits: &Limits) -> Result<Report> {
 
 /// Validates an asset held in memory; external buffers resolve against `base_dir`.
 pub fn validate_slice(bytes: &[u8], base_dir: Option<&Path>, limits: &Limits) -> Report {
-    let mut ctx = Ctx { limits, issues: Vec::new() };
+    let mut ctx = Ctx {
+        limits,
+        issues: Vec::new(),
+    };
     validate_into(&mut ctx, bytes, base_dir);
     Report { issues: ctx.issues }
 }
@@ -216,7 +243,11 @@ fn validate_into(ctx: &mut Ctx<'_>, bytes: &[u8], base_dir: Option<&Path>) {
         return ctx.report(
             "LIMIT_EXCEEDED",
             &root_ptr,
-            format!("JSON is {} bytes, above the limit of {}", bytes.len(), ctx.limits.max_json_bytes),
+            format!(
+                "JSON is {} bytes, above the limit of {}",
+                bytes.len(),
+                ctx.limits.max_json_bytes
+            ),
         );
     } else if !bytes.is_empty() && b"glTF".starts_with(bytes) {
         return ctx.report("GLB_TRUNCATED", &root_ptr, "file ends inside the GLB magic");
@@ -235,18 +266,36 @@ fn validate_into(ctx: &mut Ctx<'_>, bytes: &[u8], base_dir: Option<&Path>) {
     };
     core_checks(ctx, &root);
     let buffers: Vec<Option<Vec<u8>>> = (0..root.buffers.len())
-        .map(|i| match resolve_buffer(&root, i, bin, base_dir, ctx.limits) {
-            Ok(b) => Some(b),
-            Err(p) => {
-                let bp = root_ptr.key("buffers");
-                ctx.problem(p, &bp.index(i));
-                None
-            }
-        })
+        .map(
+            |i| match resolve_buffer(&root, i, bin, base_dir, ctx.limits) {
+                Ok(b) => Some(b),
+                Err(p) => {
+                    let bp = root_ptr.key("buffers");
+                    ctx.problem(p, &bp.index(i));
+                    None
+                }
+            },
+        )
         .collect();
     range_checks(ctx, &root);
-    let doc = Doc { root: &root, buffers: &buffers };
+    let doc = Doc {
+        root: &root,
+        buffers: &buffers,
+    };
     extension_checks(ctx, &doc);
+}
+
+/// Only the core glTF checks (indices, enumerations, required fields, bufferView and
+/// accessor ranges) of a parsed document; [`crate::read_asset`] refuses documents with
+/// any of these issues.
+pub fn validate_core(root: &json::Root, limits: &Limits) -> Report {
+    let mut ctx = Ctx {
+        limits,
+        issues: Vec::new(),
+    };
+    core_checks(&mut ctx, root);
+    range_checks(&mut ctx, root);
+    Report { issues: ctx.issues }
 }
 
 /// gltf-json's own validation: index ranges, enums, required fields.
@@ -257,10 +306,13 @@ fn core_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
     // removed from the copy it validates.
     let positions = json::validation::Checked::Valid(json::mesh::Semantic::Positions);
     let mut patched: Option<json::Root> = None;
+    let mut removed = BTreeSet::new();
     let meshes = Ptr::ROOT.key("meshes");
     for (mi, mesh) in root.meshes.iter().enumerate() {
         for (pi, prim) in mesh.primitives.iter().enumerate() {
-            let Some(a) = prim.attributes.get(&positions) else { continue };
+            let Some(a) = prim.attributes.get(&positions) else {
+                continue;
+            };
             if a.value() < root.accessors.len() {
                 continue;
             }
@@ -273,20 +325,31 @@ fn core_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
                 &ap.key("POSITION"),
                 format!("accessor {} does not exist", a.value()),
             );
+            removed.insert(format!("/meshes/{mi}/primitives/{pi}/attributes/POSITION"));
             let copy = patched.get_or_insert_with(|| root.clone());
             copy.meshes[mi].primitives[pi].attributes.remove(&positions);
         }
     }
     let root = patched.as_ref().unwrap_or(root);
     let mut found: Vec<(String, VErr)> = Vec::new();
-    root.validate(root, json::Path::new, &mut |path: &dyn Fn() -> json::Path, e| {
-        found.push((path().as_str().to_string(), e));
-    });
+    root.validate(
+        root,
+        json::Path::new,
+        &mut |path: &dyn Fn() -> json::Path, e| {
+            found.push((path().as_str().to_string(), e));
+        },
+    );
     for (path, e) in found {
         if path.starts_with("extensionsRequired") {
             continue; // our own rule below; other extensions are not ours to judge
         }
         let pointer = gltf_path_to_pointer(&path);
+        if removed
+            .iter()
+            .any(|r: &String| pointer.starts_with(r.as_str()))
+        {
+            continue; // already reported as INDEX_OUT_OF_RANGE above
+        }
         let (code, what) = match e {
             VErr::IndexOutOfBounds => ("INDEX_OUT_OF_RANGE", "index refers to a missing object"),
             VErr::Invalid => ("JSON_SCHEMA", "invalid value"),
@@ -302,7 +365,9 @@ fn core_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
 fn range_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
     let views_ptr = Ptr::ROOT.key("bufferViews");
     for (i, v) in root.buffer_views.iter().enumerate() {
-        let Some(buffer) = root.buffers.get(v.buffer.value()) else { continue };
+        let Some(buffer) = root.buffers.get(v.buffer.value()) else {
+            continue;
+        };
         let start = v.byte_offset.map_or(0, |o| o.0);
         let end = start.checked_add(v.byte_length.0);
         if end.is_none_or(|e| e > buffer.byte_length.0) {
@@ -325,22 +390,34 @@ fn range_checks(ctx: &mut Ctx<'_>, root: &json::Root) {
         else {
             continue;
         };
-        let Some(view) = root.buffer_views.get(vi.value()) else { continue };
+        let Some(view) = root.buffer_views.get(vi.value()) else {
+            continue;
+        };
         if a.count.0 == 0 {
             continue;
         }
         let elem = ct.0.size() as u128 * ty.multiplicity() as u128;
         let stride = view.byte_stride.map_or(elem, |s| s.0 as u128);
-        let need = u128::from(a.byte_offset.map_or(0, |o| o.0)) + stride * (u128::from(a.count.0) - 1) + elem;
+        let need = u128::from(a.byte_offset.map_or(0, |o| o.0))
+            + stride * (u128::from(a.count.0) - 1)
+            + elem;
         if need > u128::from(view.byte_length.0) {
             ctx.report(
                 "BUFFER_VIEW_OUT_OF_RANGE",
                 &acc_ptr.index(i),
-                format!("accessor {i} needs {need} bytes, bufferView {} has {}", vi.value(), view.byte_length.0),
+                format!(
+                    "accessor {i} needs {need} bytes, bufferView {} has {}",
+                    vi.value(),
+                    view.byte_length.0
+                ),
             );
         }
     }
 }
+
+/// A view's bytes and its offset in the buffer, `None` if the buffer failed to load, or
+/// a code and message.
+type ViewResult<'a> = std::result::Result<Option<(&'a [u8], u64)>, (&'static str, String)>;
 
 struct Doc<'a> {
     root: &'a json::Root,
@@ -350,19 +427,32 @@ struct Doc<'a> {
 impl Doc<'_> {
     /// Bytes of a bufferView: `Ok(None)` if its buffer failed to load (already reported),
     /// `Err` with a code when the index or range is bad.
-    fn view(&self, view: u32) -> std::result::Result<Option<(&[u8], u64)>, (&'static str, String)> {
-        let v = self
-            .root
-            .buffer_views
-            .get(view as usize)
-            .ok_or_else(|| ("INDEX_OUT_OF_RANGE", format!("bufferView {view} does not exist")))?;
-        let Some(Some(data)) = self.buffers.get(v.buffer.value()) else { return Ok(None) };
+    fn view(&self, view: u32) -> ViewResult<'_> {
+        let v = self.root.buffer_views.get(view as usize).ok_or_else(|| {
+            (
+                "INDEX_OUT_OF_RANGE",
+                format!("bufferView {view} does not exist"),
+            )
+        })?;
+        let Some(Some(data)) = self.buffers.get(v.buffer.value()) else {
+            return Ok(None);
+        };
         let offset = v.byte_offset.map_or(0, |o| o.0);
         let slice = offset
             .checked_add(v.byte_length.0)
-            .filter(|&e| self.root.buffers.get(v.buffer.value()).is_some_and(|b| e <= b.byte_length.0))
+            .filter(|&e| {
+                self.root
+                    .buffers
+                    .get(v.buffer.value())
+                    .is_some_and(|b| e <= b.byte_length.0)
+            })
             .and_then(|e| data.get(usize::try_from(offset).ok()?..usize::try_from(e).ok()?))
-            .ok_or_else(|| ("BUFFER_VIEW_OUT_OF_RANGE", format!("bufferView {view} reaches past its buffer")))?;
+            .ok_or_else(|| {
+                (
+                    "BUFFER_VIEW_OUT_OF_RANGE",
+                    format!("bufferView {view} reaches past its buffer"),
+                )
+            })?;
         Ok(Some((slice, offset)))
     }
 }
@@ -396,7 +486,9 @@ fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
             ctx.report(
                 "EXTENSION_REQUIRED",
                 &req.index(i),
-                format!("`{EXTENSION_NAME}` must not be required: viewers without it show the fallback"),
+                format!(
+                    "`{EXTENSION_NAME}` must not be required: viewers without it show the fallback"
+                ),
             );
         }
     }
@@ -413,13 +505,20 @@ fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
         Some(Value::Object(obj)) => {
             match obj.get("version").map(Value::as_u64) {
                 None | Some(None) => {
-                    return ctx.report("JSON_SCHEMA", &ext_ptr.key("version"), "version must be a non-negative integer")
+                    return ctx.report(
+                        "JSON_SCHEMA",
+                        &ext_ptr.key("version"),
+                        "version must be a non-negative integer",
+                    )
                 }
                 Some(Some(v)) if v != u64::from(model::VERSION) => {
                     return ctx.report(
                         "VERSION_UNSUPPORTED",
                         &ext_ptr.key("version"),
-                        format!("version {v} is not supported (this validator knows version {})", model::VERSION),
+                        format!(
+                            "version {v} is not supported (this validator knows version {})",
+                            model::VERSION
+                        ),
                     )
                 }
                 _ => {}
@@ -427,7 +526,13 @@ fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
             textures = array_of(ctx, obj.get("neuralTextures"), &ext_ptr, "neuralTextures");
             renderers = array_of(ctx, obj.get("renderers"), &ext_ptr, "renderers");
         }
-        Some(_) => return ctx.report("JSON_SCHEMA", &ext_ptr, "the extension object must be an object"),
+        Some(_) => {
+            return ctx.report(
+                "JSON_SCHEMA",
+                &ext_ptr,
+                "the extension object must be an object",
+            )
+        }
     }
     let tex_ptr = ext_ptr.key("neuralTextures");
     let mut texel_values = 0u64;
@@ -475,31 +580,56 @@ fn array_of<T: serde::de::DeserializeOwned>(
     }
 }
 
-fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<'_>, texel_values: &mut u64) {
+fn check_texture(
+    ctx: &mut Ctx<'_>,
+    doc: &Doc<'_>,
+    t: &NeuralTexture,
+    ptr: &Ptr<'_>,
+    texel_values: &mut u64,
+) {
     let limits = ctx.limits;
     let mut channels_ok = true;
     if t.channels == 0 {
-        ctx.report("TEXTURE_CHANNELS_RANGE", &ptr.key("channels"), "channels must be at least 1");
+        ctx.report(
+            "TEXTURE_CHANNELS_RANGE",
+            &ptr.key("channels"),
+            "channels must be at least 1",
+        );
         channels_ok = false;
     } else if t.channels > limits.max_channels {
         ctx.report(
             "LIMIT_EXCEEDED",
             &ptr.key("channels"),
-            format!("{} channels, above the limit of {}", t.channels, limits.max_channels),
+            format!(
+                "{} channels, above the limit of {}",
+                t.channels, limits.max_channels
+            ),
         );
         channels_ok = false;
     }
     if let Some(s) = t.sampler {
         if s as usize >= doc.root.samplers.len() {
-            ctx.report("INDEX_OUT_OF_RANGE", &ptr.key("sampler"), format!("sampler {s} does not exist"));
+            ctx.report(
+                "INDEX_OUT_OF_RANGE",
+                &ptr.key("sampler"),
+                format!("sampler {s} does not exist"),
+            );
         }
     }
     if let Some(vd) = &t.view_dependence {
         let vp = ptr.key("viewDependence");
         if vd.basis != model::BASIS_SPHERICAL_HARMONICS {
-            ctx.report("SH_DEGREE_UNSUPPORTED", &vp.key("basis"), format!("basis `{}` is not sphericalHarmonics", vd.basis));
+            ctx.report(
+                "SH_DEGREE_UNSUPPORTED",
+                &vp.key("basis"),
+                format!("basis `{}` is not sphericalHarmonics", vd.basis),
+            );
         } else if vd.degree > 3 {
-            ctx.report("SH_DEGREE_UNSUPPORTED", &vp.key("degree"), format!("degree {} is above 3", vd.degree));
+            ctx.report(
+                "SH_DEGREE_UNSUPPORTED",
+                &vp.key("degree"),
+                format!("degree {} is above 3", vd.degree),
+            );
         } else if u64::from(vd.first_channel) + vd.coefficient_count() > u64::from(t.channels) {
             ctx.report(
                 "SH_CHANNELS_OUT_OF_RANGE",
@@ -515,14 +645,22 @@ fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<
     }
     let lp = ptr.key("levels");
     if t.levels.is_empty() {
-        ctx.report("TEXTURE_NO_LEVELS", &lp, "a neural texture needs at least one level");
+        ctx.report(
+            "TEXTURE_NO_LEVELS",
+            &lp,
+            "a neural texture needs at least one level",
+        );
         return;
     }
     if t.levels.len() as u64 > u64::from(limits.max_levels) {
         ctx.report(
             "LIMIT_EXCEEDED",
             &lp,
-            format!("{} levels, above the limit of {}", t.levels.len(), limits.max_levels),
+            format!(
+                "{} levels, above the limit of {}",
+                t.levels.len(),
+                limits.max_levels
+            ),
         );
         return;
     }
@@ -530,17 +668,28 @@ fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<
     for (li, l) in t.levels.iter().enumerate() {
         let p = lp.index(li);
         if l.mime_type != model::LEVEL_MIME_TYPE {
-            ctx.report("TEXTURE_MIME_TYPE", &p.key("mimeType"), format!("mimeType `{}`, expected `image/x-exr`", l.mime_type));
+            ctx.report(
+                "TEXTURE_MIME_TYPE",
+                &p.key("mimeType"),
+                format!("mimeType `{}`, expected `image/x-exr`", l.mime_type),
+            );
         }
         if l.width == 0 || l.height == 0 {
-            ctx.report("JSON_SCHEMA", &p, format!("level size {}x{} has a zero side", l.width, l.height));
+            ctx.report(
+                "JSON_SCHEMA",
+                &p,
+                format!("level size {}x{} has a zero side", l.width, l.height),
+            );
             continue;
         }
         if l.width.max(l.height) > limits.max_texture_side {
             ctx.report(
                 "LIMIT_EXCEEDED",
                 &p,
-                format!("level {}x{} exceeds the side limit {}", l.width, l.height, limits.max_texture_side),
+                format!(
+                    "level {}x{} exceeds the side limit {}",
+                    l.width, l.height, limits.max_texture_side
+                ),
             );
             continue;
         }
@@ -549,7 +698,10 @@ fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<
                 ctx.report(
                     "TEXTURE_LEVEL_ORDER",
                     &p,
-                    format!("level {}x{} is larger than the level before it ({pw}x{ph})", l.width, l.height),
+                    format!(
+                        "level {}x{} is larger than the level before it ({pw}x{ph})",
+                        l.width, l.height
+                    ),
                 );
             }
         }
@@ -571,11 +723,18 @@ fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<
             ctx.report(
                 "LIMIT_EXCEEDED",
                 &p,
-                format!("{} texel values so far, above the limit of {}", texel_values, limits.max_total_texel_values),
+                format!(
+                    "{} texel values so far, above the limit of {}",
+                    texel_values, limits.max_total_texel_values
+                ),
             );
             continue;
         }
-        let expect = LevelExpect { width: l.width, height: l.height, channels: t.channels };
+        let expect = LevelExpect {
+            width: l.width,
+            height: l.height,
+            channels: t.channels,
+        };
         let header = match read_level_header(bytes) {
             Ok(h) => h,
             Err(pr) => {
@@ -594,7 +753,11 @@ fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<
             Ok(h) => {
                 let bad = h.iter().filter(|v| !v.is_finite()).count();
                 if bad > 0 {
-                    ctx.report("EXR_NON_FINITE", &p.key("bufferView"), format!("{bad} half values are NaN or infinite"));
+                    ctx.report(
+                        "EXR_NON_FINITE",
+                        &p.key("bufferView"),
+                        format!("{bad} half values are NaN or infinite"),
+                    );
                 }
             }
             Err(pr) => ctx.problem(pr, &p.key("bufferView")),
@@ -602,7 +765,13 @@ fn check_texture(ctx: &mut Ctx<'_>, doc: &Doc<'_>, t: &NeuralTexture, ptr: &Ptr<
     }
 }
 
-fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>, weight_elements: &mut u64) {
+fn check_renderer(
+    ctx: &mut Ctx<'_>,
+    doc: &Doc<'_>,
+    r: &Renderer,
+    ptr: &Ptr<'_>,
+    weight_elements: &mut u64,
+) {
     let limits = ctx.limits;
     for p in renderer_problems(r) {
         let field = match p.code {
@@ -612,43 +781,66 @@ fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>,
         };
         ctx.problem(p, &field);
     }
-    let required: Option<BTreeMap<String, Vec<u32>>> =
-        architecture_tensors(r).ok().map(|v| v.into_iter().collect());
+    let required: Option<BTreeMap<String, Vec<u32>>> = architecture_tensors(r)
+        .ok()
+        .map(|v| v.into_iter().collect());
     let wp = ptr.key("weights");
     if r.weights.len() as u64 > u64::from(limits.max_tensors) {
         return ctx.report(
             "LIMIT_EXCEEDED",
             &wp,
-            format!("{} tensors, above the limit of {}", r.weights.len(), limits.max_tensors),
+            format!(
+                "{} tensors, above the limit of {}",
+                r.weights.len(),
+                limits.max_tensors
+            ),
         );
     }
     let mut seen = BTreeSet::new();
     for (j, w) in r.weights.iter().enumerate() {
         let p = wp.index(j);
         if !seen.insert(w.name.as_str()) {
-            ctx.report("WEIGHTS_UNEXPECTED", &p.key("name"), format!("tensor `{}` appears more than once", w.name));
+            ctx.report(
+                "WEIGHTS_UNEXPECTED",
+                &p.key("name"),
+                format!("tensor `{}` appears more than once", w.name),
+            );
         }
         if let Some(req) = &required {
             match req.get(&w.name) {
                 None => ctx.report(
                     "WEIGHTS_UNEXPECTED",
                     &p.key("name"),
-                    format!("architecture `{}` has no tensor `{}`", r.architecture, w.name),
+                    format!(
+                        "architecture `{}` has no tensor `{}`",
+                        r.architecture, w.name
+                    ),
                 ),
                 Some(shape) if *shape != w.shape => ctx.report(
                     "WEIGHTS_SHAPE_MISMATCH",
                     &p.key("shape"),
-                    format!("tensor `{}` has shape {:?}, the architecture requires {shape:?}", w.name, w.shape),
+                    format!(
+                        "tensor `{}` has shape {:?}, the architecture requires {shape:?}",
+                        w.name, w.shape
+                    ),
                 ),
                 Some(_) => {}
             }
         }
         if w.shape.len() as u64 > u64::from(limits.max_tensor_rank) {
-            ctx.report("LIMIT_EXCEEDED", &p.key("shape"), format!("rank {} above the limit", w.shape.len()));
+            ctx.report(
+                "LIMIT_EXCEEDED",
+                &p.key("shape"),
+                format!("rank {} above the limit", w.shape.len()),
+            );
             continue;
         }
         let Some(size) = w.dtype.size_of() else {
-            ctx.report("WEIGHTS_DTYPE_UNKNOWN", &p.key("dtype"), format!("dtype `{}` is not f16 or f32", w.dtype));
+            ctx.report(
+                "WEIGHTS_DTYPE_UNKNOWN",
+                &p.key("dtype"),
+                format!("dtype `{}` is not f16 or f32", w.dtype),
+            );
             continue;
         };
         let Some(count) = w.element_count() else {
@@ -660,7 +852,10 @@ fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>,
             ctx.report(
                 "LIMIT_EXCEEDED",
                 &p.key("shape"),
-                format!("{} weight elements so far, above the limit of {}", weight_elements, limits.max_weight_elements),
+                format!(
+                    "{} weight elements so far, above the limit of {}",
+                    weight_elements, limits.max_weight_elements
+                ),
             );
             continue;
         }
@@ -707,7 +902,10 @@ fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>,
             ctx.report(
                 "WEIGHTS_CHECKSUM_MISMATCH",
                 &p.key("crc32"),
-                format!("tensor `{}` has CRC-32 {crc}, crc32 says {}", w.name, w.crc32),
+                format!(
+                    "tensor `{}` has CRC-32 {crc}, crc32 says {}",
+                    w.name, w.crc32
+                ),
             );
         }
         let non_finite = match w.dtype {
@@ -724,7 +922,10 @@ fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>,
             ctx.report(
                 "WEIGHTS_NON_FINITE",
                 &p,
-                format!("tensor `{}` holds {non_finite} NaN or infinite values", w.name),
+                format!(
+                    "tensor `{}` holds {non_finite} NaN or infinite values",
+                    w.name
+                ),
             );
         }
     }
@@ -734,7 +935,10 @@ fn check_renderer(ctx: &mut Ctx<'_>, doc: &Doc<'_>, r: &Renderer, ptr: &Ptr<'_>,
                 ctx.report(
                     "WEIGHTS_MISSING",
                     &wp,
-                    format!("architecture `{}` requires tensor `{name}` of shape {shape:?}", r.architecture),
+                    format!(
+                        "architecture `{}` requires tensor `{name}` of shape {shape:?}",
+                        r.architecture
+                    ),
                 );
             }
         }
@@ -762,7 +966,11 @@ fn check_materials(
             }
         };
         tex_coord_of.insert(i, m.tex_coord);
-        if root.materials[i].pbr_metallic_roughness.base_color_texture.is_none() {
+        if root.materials[i]
+            .pbr_metallic_roughness
+            .base_color_texture
+            .is_none()
+        {
             ctx.report(
                 "FALLBACK_MISSING",
                 &p.key("pbrMetallicRoughness"),
@@ -772,10 +980,18 @@ fn check_materials(
         let t = textures.get(m.neural_texture as usize);
         let r = renderers.get(m.renderer as usize);
         if t.is_none() {
-            ctx.report("INDEX_OUT_OF_RANGE", &ep.key("neuralTexture"), format!("neural texture {} does not exist", m.neural_texture));
+            ctx.report(
+                "INDEX_OUT_OF_RANGE",
+                &ep.key("neuralTexture"),
+                format!("neural texture {} does not exist", m.neural_texture),
+            );
         }
         if r.is_none() {
-            ctx.report("INDEX_OUT_OF_RANGE", &ep.key("renderer"), format!("renderer {} does not exist", m.renderer));
+            ctx.report(
+                "INDEX_OUT_OF_RANGE",
+                &ep.key("renderer"),
+                format!("renderer {} does not exist", m.renderer),
+            );
         }
         if let (Some(Some(t)), Some(Some(r))) = (t, r) {
             if t.channels != r.input_channels {
@@ -795,7 +1011,9 @@ fn check_materials(
         let mp = meshes.index(mi);
         let pp = mp.key("primitives");
         for (pi, prim) in mesh.primitives.iter().enumerate() {
-            let Some(n) = prim.material.and_then(|m| tex_coord_of.get(&m.value())) else { continue };
+            let Some(n) = prim.material.and_then(|m| tex_coord_of.get(&m.value())) else {
+                continue;
+            };
             let has = prim
                 .attributes
                 .keys()

@@ -6,12 +6,13 @@
 //! output cropped back.
 
 use super::{check_no_extra, fetch_tensors, map_lookup, NetworkError, TensorRef};
-use crate::nn::activation::{leaky_relu, tanh, LEAKY_SLOPE};
+use crate::nn::activation::{Act, LEAKY_SLOPE};
 use crate::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
 use crate::nn::conv_transpose::TconvLayout;
 use crate::nn::gemm::PackedA;
-use crate::nn::norm::instance_norm;
-use crate::nn::upsample::upsample_nearest2;
+use crate::nn::norm::{instance_norm, normalize};
+use crate::nn::upsample::upsample_nearest2_concat;
+use crate::nn::tensor::pool;
 use crate::nn::{NnError, Tensor};
 use std::collections::BTreeMap;
 
@@ -205,6 +206,10 @@ impl UNet {
     }
 
     /// Output (after tanh, in [-1, 1]) for a `in_ch x H x W` feature image; `out_ch x H x W`.
+    ///
+    /// Activations are kept before their LeakyReLU (normalised conv outputs, `z`); the next
+    /// layer applies the LeakyReLU while it gathers its input, and the decoder reads its skip
+    /// in place, so no activated copy or concatenation is ever built.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor, NnError> {
         let p = &self.params;
         if x.c != p.in_ch {
@@ -215,57 +220,84 @@ impl UNet {
         }
         let (hp, wp) = p.padded_size(x.h, x.w);
         let d = p.depth();
-        let mut skips: Vec<Tensor> = Vec::with_capacity(d);
-        let mut cur = x.pad_bottom_right(hp, wp);
+        let lrelu = Act::LeakyRelu(LEAKY_SLOPE);
+        let mut z: Vec<Tensor> = Vec::with_capacity(d);
         for i in 0..d {
-            let g = p.encoder_geom(i);
-            let l = ConvLayout::new(g, cur.h, cur.w)?;
-            let raw = l.gemm(&self.enc[i].packed[0], &l.gather(&cur));
-            let mut y = l.finish(&raw, Some(&self.enc[i].bias));
-            self.norm_act(&mut y);
-            skips.push(y.clone());
-            cur = y;
+            let (src, act, (h, w)) = match z.last() {
+                None => (x, Act::Identity, (hp, wp)),
+                Some(prev) => (prev, lrelu, (prev.h, prev.w)),
+            };
+            let l = ConvLayout::new(p.encoder_geom(i), h, w)?;
+            let buf = l.gather_act(src, act);
+            let raw = l.gemm(&self.enc[i].packed[0], &buf);
+            pool::recycle(buf);
+            z.push(self.finish_norm(&l, &raw, &self.enc[i].bias));
+            pool::recycle(raw);
         }
-        let mut cur = skips.pop().expect("depth >= 1");
+        let mut cur = z.pop().expect("depth >= 1");
         for i in (0..d).rev() {
-            let mut y = self.up(i, &cur)?;
-            if i == 0 {
-                tanh(&mut y.data);
-                return Ok(y.crop_top_left(x.h, x.w));
+            let mut parts = vec![&cur];
+            if i < d - 1 {
+                parts.push(&z[i]);
             }
-            self.norm_act(&mut y);
-            cur = y.concat(&skips.pop().expect("skip per level"))?;
+            if i == 0 {
+                let out = self.up(0, &parts, Act::Tanh, x.h, x.w);
+                cur.recycle();
+                z.into_iter().for_each(Tensor::recycle);
+                return out;
+            }
+            let y = self.up(i, &parts, Act::Identity, 2 * cur.h, 2 * cur.w)?;
+            std::mem::replace(&mut cur, y).recycle();
+            if self.params.norm == Norm::Instance {
+                instance_norm(&mut cur);
+            }
         }
         unreachable!("the loop returns at i = 0")
     }
 
-    fn norm_act(&self, y: &mut Tensor) {
+    /// Conv output without junk columns, plus bias, normalised when the architecture says so.
+    fn finish_norm(&self, l: &ConvLayout, raw: &[f32], bias: &[f32]) -> Tensor {
         if self.params.norm == Norm::Instance {
-            instance_norm(y);
+            let (mut y, st) = l.finish_stats(raw, Some(bias));
+            normalize(&mut y, &st);
+            y
+        } else {
+            l.finish(raw, Some(bias))
         }
-        leaky_relu(&mut y.data, LEAKY_SLOPE);
     }
 
-    /// Decoder `i` (no norm or activation).
-    fn up(&self, i: usize, x: &Tensor) -> Result<Tensor, NnError> {
+    /// Decoder `i` on `lrelu(concat(parts))`, output `act`-ed and cropped to `oh x ow`.
+    fn up(&self, i: usize, parts: &[&Tensor], act: Act, oh: usize, ow: usize) -> Result<Tensor, NnError> {
         let layer = &self.dec[i];
         let (ci, co) = self.params.decoder_channels(i);
+        let (h, w) = (parts[0].h, parts[0].w);
+        let lrelu = Act::LeakyRelu(LEAKY_SLOPE);
         match self.params.decoder {
             Decoder::TransposedConv => {
-                let l = TconvLayout::new(ci, co, x.h, x.w);
-                let buf = l.gather(x);
-                let mut out = Tensor::zeros(co, 2 * x.h, 2 * x.w);
+                let l = TconvLayout::new(ci, co, h, w);
+                let buf = l.gather_concat(parts, lrelu);
+                let mut out = Tensor::scratch(co, oh, ow);
                 for ph in 0..4 {
                     let raw = l.gemm(&layer.packed[ph], &buf, ph);
-                    l.interleave(&raw, ph, Some(&layer.bias), &mut out);
+                    l.interleave_act(&raw, ph, Some(&layer.bias), act, &mut out);
+                    pool::recycle(raw);
                 }
+                pool::recycle(buf);
                 Ok(out)
             }
             Decoder::UpsampleConv => {
-                let u = upsample_nearest2(x);
+                let u = upsample_nearest2_concat(parts, lrelu);
                 let l = ConvLayout::new(self.params.decoder_geom(i), u.h, u.w)?;
-                let raw = l.gemm(&layer.packed[0], &l.gather(&u));
-                Ok(l.finish(&raw, Some(&layer.bias)))
+                let buf = l.gather(&u);
+                u.recycle();
+                let raw = l.gemm(&layer.packed[0], &buf);
+                pool::recycle(buf);
+                let mut y = l.finish(&raw, Some(&layer.bias));
+                pool::recycle(raw);
+                if act != Act::Identity {
+                    y.data.iter_mut().for_each(|v| *v = act.apply(*v));
+                }
+                Ok(if (oh, ow) == (y.h, y.w) { y } else { y.crop_top_left(oh, ow) })
             }
         }
     }

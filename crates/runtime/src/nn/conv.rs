@@ -11,8 +11,22 @@
 //! - [`LayoutKind::Im2col`] (anything else): one plane per (c, ky, kx), one tap.
 
 use super::gemm::{gemm_nn, PackedA};
+use super::activation::{lrelu, tanh_f32, Act};
+use super::norm::{plane_stats, NormStats};
+use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
 use rayon::prelude::*;
+
+/// `dst[i] = act(src[2 i])` for as many values as both hold.
+fn map_stride2(act: Act, src: &[f32], dst: &mut [f32]) {
+    let n = dst.len().min(src.len().div_ceil(2));
+    let (dst, src) = (&mut dst[..n], &src[..(2 * n).min(src.len())]);
+    match act {
+        Act::Identity => dst.iter_mut().zip(src.iter().step_by(2)).for_each(|(d, &s)| *d = s),
+        Act::LeakyRelu(sl) => dst.iter_mut().zip(src.iter().step_by(2)).for_each(|(d, &s)| *d = lrelu(s, sl)),
+        Act::Tanh => dst.iter_mut().zip(src.iter().step_by(2)).for_each(|(d, &s)| *d = tanh_f32(s)),
+    }
+}
 
 /// Geometry of a convolution with a square kernel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -159,7 +173,21 @@ pub fn pack_conv_weights(geom: ConvGeom, w: &[f32]) -> PackedA {
     let kind = LayoutKind::for_geom(geom);
     let per_o = geom.c_in * geom.k * geom.k;
     let map: Vec<usize> = (0..per_o).map(|kk| weight_index(geom, kind, kk)).collect();
-    PackedA::from_fn(geom.c_out, per_o, |o, kk| w[o * per_o + map[kk]])
+    let rows: Vec<usize> = (0..geom.c_out).map(|o| o * per_o).collect();
+    PackedA::from_offsets(w, &rows, &map)
+}
+
+/// The weight index of GEMM row `p * taps + t` split as `plane_part(p) + tap_part(t)` (it is a
+/// sum for every layout), for packing the transposed weights of the input gradient.
+pub fn weight_index_parts(geom: ConvGeom) -> (Vec<usize>, Vec<usize>) {
+    let kind = LayoutKind::for_geom(geom);
+    let taps = kind.taps(geom);
+    let planes = geom.c_in * geom.k * geom.k / taps;
+    let tap0 = weight_index(geom, kind, 0);
+    let p_part: Vec<usize> = (0..planes).map(|p| weight_index(geom, kind, p * taps) - tap0).collect();
+    let t_part: Vec<usize> = (0..taps).map(|t| weight_index(geom, kind, t)).collect();
+    debug_assert!((0..planes * taps).all(|kk| weight_index(geom, kind, kk) == p_part[kk / taps] + t_part[kk % taps]));
+    (p_part, t_part)
 }
 
 impl ConvLayout {
@@ -241,10 +269,26 @@ impl ConvLayout {
 
     /// Rearranges `x` into the GEMM's B buffer (zeros where the kernel reads padding).
     pub fn gather(&self, x: &Tensor) -> Vec<f32> {
-        assert!(x.c == self.geom.c_in && x.h == self.h_in && x.w == self.w_in, "conv gather shape");
-        let mut buf = vec![0.0f32; self.buffer_len()];
+        self.gather_act(x, Act::Identity)
+    }
+
+    /// [`Self::gather`] of `act(x)`. `x` may be smaller than the layout's input
+    /// (`h_in x w_in`): it is zero-extended at the bottom and right (the U-Net's padding).
+    pub fn gather_act(&self, x: &Tensor, act: Act) -> Vec<f32> {
+        assert!(x.c == self.geom.c_in && x.h <= self.h_in && x.w <= self.w_in, "conv gather shape");
+        let mut buf = pool::scratch(self.buffer_len());
         let (pw, ph) = (self.pitch, self.plane_h);
-        buf.par_chunks_mut(self.plane_stride).enumerate().for_each(|(pl, plane)| match self.kind {
+        let min = par_min_items(self.plane_stride);
+        buf.par_chunks_mut(self.plane_stride).with_min_len(min).enumerate().for_each(|(pl, plane)| {
+            // Zero here rather than up front: the plane is then cache-hot for the writes below.
+            plane.fill(0.0);
+            self.gather_plane(x, act, pl, plane, pw, ph)
+        });
+        buf
+    }
+
+    fn gather_plane(&self, x: &Tensor, act: Act, pl: usize, plane: &mut [f32], pw: usize, ph: usize) {
+        match self.kind {
             LayoutKind::SpaceToDepth => {
                 let (c, a, b) = (pl / 4, (pl / 2) % 2, pl % 2);
                 // Plane (a, b) row Y col X holds x[2Y + a - 1][2X + b - 1].
@@ -253,26 +297,27 @@ impl ConvLayout {
                     let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < x.h) else { continue };
                     let src = &x.data[(c * x.h + y) * x.w..][..x.w];
                     let dst = &mut plane[row * pw + col0..(row + 1) * pw];
-                    dst.iter_mut().zip(src[x0.min(x.w)..].iter().step_by(2)).for_each(|(d, s)| *d = *s);
+                    map_stride2(act, &src[x0.min(x.w)..], dst);
                 }
             }
             LayoutKind::Padded => {
                 let p = self.geom.pad;
                 for y in 0..x.h {
-                    plane[(y + p) * pw + p..][..x.w].copy_from_slice(&x.data[(pl * x.h + y) * x.w..][..x.w]);
+                    act.map(&x.data[(pl * x.h + y) * x.w..][..x.w], &mut plane[(y + p) * pw + p..][..x.w]);
                 }
             }
             LayoutKind::Im2col => {
                 for row in 0..ph {
                     for col in 0..pw {
                         if let Some((c, y, xx)) = self.source(pl, row, col) {
-                            plane[row * pw + col] = x.data[(c * x.h + y) * x.w + xx];
+                            if y < x.h && xx < x.w {
+                                plane[row * pw + col] = act.apply(x.data[(c * x.h + y) * x.w + xx]);
+                            }
                         }
                     }
                 }
             }
-        });
-        buf
+        }
     }
 
     /// Adjoint of [`Self::gather`]: sums the gradient of the B buffer back onto the input
@@ -293,7 +338,7 @@ impl ConvLayout {
             return;
         }
         match self.kind {
-            LayoutKind::SpaceToDepth => dx.data.par_chunks_mut(n).enumerate().for_each(|(c, dplane)| {
+            LayoutKind::SpaceToDepth => dx.data.par_chunks_mut(n).with_min_len(par_min_items(n)).enumerate().for_each(|(c, dplane)| {
                 // Each input pixel appears in exactly one phase plane.
                 for a in 0..2 {
                     for b in 0..2 {
@@ -308,7 +353,7 @@ impl ConvLayout {
                     }
                 }
             }),
-            LayoutKind::Padded => dx.data.par_chunks_mut(n).enumerate().for_each(|(c, dplane)| {
+            LayoutKind::Padded => dx.data.par_chunks_mut(n).with_min_len(par_min_items(n)).enumerate().for_each(|(c, dplane)| {
                 let p = self.geom.pad;
                 for y in 0..self.h_in {
                     let src = &dbuf[c * ps + (y + p) * pw + p..][..self.w_in];
@@ -332,19 +377,46 @@ impl ConvLayout {
 
     /// Raw GEMM output (`c_out x n`, row stride `n`) of packed weights on a gathered buffer.
     pub fn gemm(&self, a: &PackedA, buf: &[f32]) -> Vec<f32> {
-        let mut out = vec![0.0f32; self.geom.c_out * self.n];
+        let mut out = pool::scratch(self.geom.c_out * self.n);
         gemm_nn(a, buf, &self.rows(), self.n, &mut out, self.n, false);
         out
+    }
+
+    /// [`Self::finish`] that also returns the instance-norm statistics of every output channel
+    /// (computed in the same pass).
+    pub fn finish_stats(&self, raw: &[f32], bias: Option<&[f32]>) -> (Tensor, NormStats) {
+        let (ho, wo) = (self.h_out, self.w_out);
+        let mut out = Tensor::scratch(self.geom.c_out, ho, wo);
+        let stats: Vec<(f32, f32)> = if ho * wo == 0 {
+            vec![plane_stats(&[]); self.geom.c_out]
+        } else {
+            out.data
+                .par_chunks_mut(ho * wo)
+                .with_min_len(par_min_items(ho * wo))
+                .enumerate()
+                .map(|(o, dst)| {
+                    let b = bias.map_or(0.0, |b| b[o]);
+                    let src = &raw[o * self.n..(o + 1) * self.n];
+                    for y in 0..ho {
+                        for (d, s) in dst[y * wo..(y + 1) * wo].iter_mut().zip(&src[y * self.pitch..]) {
+                            *d = s + b;
+                        }
+                    }
+                    plane_stats(dst)
+                })
+                .collect()
+        };
+        (out, NormStats { mean: stats.iter().map(|s| s.0).collect(), rstd: stats.iter().map(|s| s.1).collect() })
     }
 
     /// Drops the junk columns of the raw GEMM output and adds the bias.
     pub fn finish(&self, raw: &[f32], bias: Option<&[f32]>) -> Tensor {
         let (ho, wo) = (self.h_out, self.w_out);
-        let mut out = Tensor::zeros(self.geom.c_out, ho, wo);
+        let mut out = Tensor::scratch(self.geom.c_out, ho, wo);
         if ho * wo == 0 {
             return out;
         }
-        out.data.par_chunks_mut(ho * wo).enumerate().for_each(|(o, dst)| {
+        out.data.par_chunks_mut(ho * wo).with_min_len(par_min_items(ho * wo)).enumerate().for_each(|(o, dst)| {
             let b = bias.map_or(0.0, |b| b[o]);
             let src = &raw[o * self.n..(o + 1) * self.n];
             for y in 0..ho {
@@ -363,5 +435,8 @@ pub fn conv2d(x: &Tensor, w: &[f32], bias: Option<&[f32]>, geom: ConvGeom) -> Re
     let layout = ConvLayout::new(geom, x.h, x.w)?;
     let buf = layout.gather(x);
     let raw = layout.gemm(&layout.pack_weights(w), &buf);
-    Ok(layout.finish(&raw, bias))
+    pool::recycle(buf);
+    let y = layout.finish(&raw, bias);
+    pool::recycle(raw);
+    Ok(y)
 }

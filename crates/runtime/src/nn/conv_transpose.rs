@@ -6,8 +6,11 @@
 //! (3 - py - 2a, 3 - px - 2b). Each phase is one GEMM over the zero-padded input planes read at
 //! four shifted offsets, the same scheme as [`super::conv::ConvLayout`].
 
+use super::activation::Act;
 use super::gemm::{gemm_nn, PackedA};
+use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
+use rayon::prelude::*;
 
 /// The GEMM form of a 4x4 stride-2 padding-1 transposed convolution on one input size.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -75,7 +78,10 @@ impl TconvLayout {
     /// Weights of phase `ph` packed as A (`c_out x 4 c_in`).
     pub fn pack_weights(&self, w: &[f32], ph: usize) -> PackedA {
         assert_eq!(w.len(), self.weight_len(), "transposed conv weights");
-        PackedA::from_fn(self.c_out, self.c_in * 4, |o, kk| w[self.weight_index(ph, o, kk)])
+        // weight_index(ph, o, kk) = (kk's part) + 16 o.
+        let rows: Vec<usize> = (0..self.c_out).map(|o| 16 * o).collect();
+        let cols: Vec<usize> = (0..self.c_in * 4).map(|kk| self.weight_index(ph, 0, kk)).collect();
+        PackedA::from_offsets(w, &rows, &cols)
     }
 
     /// Length of the gathered buffer.
@@ -85,20 +91,30 @@ impl TconvLayout {
 
     /// Zero-padded input planes (one pixel of zeros on every side).
     pub fn gather(&self, x: &Tensor) -> Vec<f32> {
-        assert!(x.c == self.c_in && x.h == self.h_in && x.w == self.w_in, "tconv gather shape");
-        let mut buf = vec![0.0f32; self.buffer_len()];
-        for c in 0..x.c {
-            let plane = &mut buf[c * self.plane_stride..];
-            for y in 0..x.h {
-                plane[(y + 1) * self.pitch + 1..][..x.w].copy_from_slice(&x.data[(c * x.h + y) * x.w..][..x.w]);
+        self.gather_concat(&[x], Act::Identity)
+    }
+
+    /// [`Self::gather`] of `act(concat(parts))`: the parts' channels in order (they sum to
+    /// `c_in`), each `h_in x w_in`. Reading the parts in place saves the concat copy.
+    pub fn gather_concat(&self, parts: &[&Tensor], act: Act) -> Vec<f32> {
+        assert_eq!(parts.iter().map(|p| p.c).sum::<usize>(), self.c_in, "tconv gather channels");
+        assert!(parts.iter().all(|p| p.h == self.h_in && p.w == self.w_in), "tconv gather size");
+        let mut buf = pool::scratch(self.buffer_len());
+        let planes: Vec<&[f32]> = parts.iter().flat_map(|p| (0..p.c).map(move |c| p.plane(c))).collect();
+        let (h, w) = (self.h_in, self.w_in);
+        let min = par_min_items(self.plane_stride);
+        buf.par_chunks_mut(self.plane_stride).zip(planes).with_min_len(min).for_each(|(dst, src)| {
+            dst.fill(0.0);
+            for y in 0..h {
+                act.map(&src[y * w..(y + 1) * w], &mut dst[(y + 1) * self.pitch + 1..][..w]);
             }
-        }
+        });
         buf
     }
 
     /// Raw GEMM output of phase `ph` (`c_out x n`).
     pub fn gemm(&self, a: &PackedA, buf: &[f32], ph: usize) -> Vec<f32> {
-        let mut out = vec![0.0f32; self.c_out * self.n];
+        let mut out = pool::scratch(self.c_out * self.n);
         gemm_nn(a, buf, &self.rows(ph), self.n, &mut out, self.n, false);
         out
     }
@@ -106,19 +122,30 @@ impl TconvLayout {
     /// Writes phase `ph`'s raw output (junk columns dropped, bias added) into `out`
     /// (`c_out x 2h x 2w`).
     pub fn interleave(&self, raw: &[f32], ph: usize, bias: Option<&[f32]>, out: &mut Tensor) {
+        self.interleave_act(raw, ph, bias, Act::Identity, out);
+    }
+
+    /// [`Self::interleave`] with `act` applied to every value (after the bias). `out` may be
+    /// smaller than `2h x 2w` (a top-left crop): pixels outside it are dropped.
+    pub fn interleave_act(&self, raw: &[f32], ph: usize, bias: Option<&[f32]>, act: Act, out: &mut Tensor) {
+        assert!(out.c == self.c_out && out.h <= 2 * self.h_in && out.w <= 2 * self.w_in, "tconv output shape");
         let (py, px) = (ph / 2, ph % 2);
-        let (h, w) = (self.h_in, self.w_in);
-        for o in 0..self.c_out {
+        let (ow, oh) = (out.w, out.h);
+        if ow == 0 || oh == 0 {
+            return;
+        }
+        out.data.par_chunks_mut(oh * ow).with_min_len(par_min_items(oh * ow)).enumerate().for_each(|(o, dst)| {
             let b = bias.map_or(0.0, |b| b[o]);
             let src = &raw[o * self.n..(o + 1) * self.n];
-            let dst = out.plane_mut(o);
-            for y in 0..h {
-                let drow = &mut dst[(2 * y + py) * 2 * w..(2 * y + py + 1) * 2 * w];
-                for (x, s) in src[y * self.pitch..y * self.pitch + w].iter().enumerate() {
-                    drow[2 * x + px] = s + b;
+            for y in (0..self.h_in).take_while(|y| 2 * y + py < oh) {
+                let drow = &mut dst[(2 * y + py) * ow..(2 * y + py + 1) * ow];
+                let cols = (ow - px).div_ceil(2);
+                let s = &src[y * self.pitch..y * self.pitch + cols];
+                for (d, &v) in drow[px..].iter_mut().step_by(2).zip(s) {
+                    *d = act.apply(v + b);
                 }
             }
-        }
+        });
     }
 }
 
@@ -133,10 +160,12 @@ pub fn conv_transpose4s2(x: &Tensor, w: &[f32], bias: Option<&[f32]>, c_out: usi
         return Err(NnError::Shape(format!("transposed conv bias needs {c_out} values")));
     }
     let buf = l.gather(x);
-    let mut out = Tensor::zeros(c_out, 2 * x.h, 2 * x.w);
+    let mut out = Tensor::scratch(c_out, 2 * x.h, 2 * x.w);
     for ph in 0..4 {
         let raw = l.gemm(&l.pack_weights(w, ph), &buf, ph);
         l.interleave(&raw, ph, bias, &mut out);
+        pool::recycle(raw);
     }
+    pool::recycle(buf);
     Ok(out)
 }

@@ -30,14 +30,14 @@ const KC: usize = 256;
 const NC: usize = 256;
 /// Rows of A per block of [`gemm_nn`] (MC x KC floats, in L2).
 const MC: usize = 72;
-/// Up to this many rows of A, [`gemm_nn`] reads B in place instead of packing it.
-const DIRECT_MAX_M: usize = 0;
 /// A rows per micro-tile of [`gemm_nt`].
 const RT: usize = 4;
 /// B rows per micro-tile of [`gemm_nt`].
 const CT: usize = 3;
 /// K block of [`gemm_nt`].
-const KC_NT: usize = 512;
+const KC_NT: usize = 1024;
+/// Packed values per parallel task of [`PackedA::from_offsets`].
+const PAR_MIN_PACK: usize = 1 << 15;
 /// Below this many multiply-adds a product runs on the calling thread.
 const PARALLEL_MIN_MACS: usize = 1 << 19;
 
@@ -112,10 +112,32 @@ pub struct PackedA {
 impl PackedA {
     /// Packs the M x K matrix whose element (i, k) is `a[i * rs + k * cs]`.
     pub fn new(m: usize, k: usize, a: &[f32], rs: usize, cs: usize) -> Self {
-        if m > 0 && k > 0 {
-            assert!((m - 1) * rs + (k - 1) * cs < a.len(), "PackedA: A out of bounds");
+        let rows: Vec<usize> = (0..m).map(|i| i * rs).collect();
+        let cols: Vec<usize> = (0..k).map(|kk| kk * cs).collect();
+        Self::from_offsets(a, &rows, &cols)
+    }
+
+    /// Packs the M x K matrix with element (i, k) = `w[rows[i] + cols[k]]` (M = `rows.len()`,
+    /// K = `cols.len()`): the weight layouts of every convolution are of this form.
+    pub fn from_offsets(w: &[f32], rows: &[usize], cols: &[usize]) -> Self {
+        let (m, k) = (rows.len(), cols.len());
+        let max = rows.iter().max().copied().unwrap_or(0) + cols.iter().max().copied().unwrap_or(0);
+        assert!(m == 0 || k == 0 || max < w.len(), "PackedA: A out of bounds");
+        let tiles = m.div_ceil(MR);
+        let mut data = vec![0.0f32; tiles * k * MR];
+        if k > 0 {
+            data.par_chunks_mut(k * MR).with_min_len(PAR_MIN_PACK.div_ceil(k * MR)).enumerate().for_each(|(t, panel)| {
+                let r = &rows[t * MR..(t * MR + MR).min(m)];
+                for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
+                    for (d, &ro) in dst.iter_mut().zip(r) {
+                        // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is below
+                        // `w.len()` by the assert above.
+                        *d = unsafe { *w.get_unchecked(ro + c) };
+                    }
+                }
+            });
         }
-        Self::from_fn(m, k, |i, kk| a[i * rs + kk * cs])
+        PackedA { m, k, data }
     }
 
     /// Packs the M x K matrix with element (i, k) = `f(i, k)`.
@@ -123,7 +145,7 @@ impl PackedA {
         let tiles = m.div_ceil(MR);
         let mut data = vec![0.0f32; tiles * k * MR];
         if k > 0 {
-            data.par_chunks_mut(k * MR).enumerate().for_each(|(t, panel)| {
+            data.par_chunks_mut(k * MR).with_min_len(PAR_MIN_PACK.div_ceil(k * MR)).enumerate().for_each(|(t, panel)| {
                 let rows = MR.min(m - t * MR);
                 for (kk, dst) in panel.chunks_exact_mut(MR).enumerate() {
                     for (r, d) in dst[..rows].iter_mut().enumerate() {
@@ -304,9 +326,6 @@ impl NnCtx<'_> {
             }
             return;
         }
-        if self.a.m <= DIRECT_MAX_M {
-            return self.block_direct(blk, width);
-        }
         let nrows = blk.rows.len();
         debug_assert_eq!(blk.i0 % MR, 0);
         let mut pack_store = vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK];
@@ -348,115 +367,37 @@ impl NnCtx<'_> {
         }
     }
 
-    /// Loop order for few rows of A: column strips, K blocks, MR-high tiles, with B read in
-    /// place (packing would cost more than the few tiles that reuse it); a ragged last strip
-    /// goes through a zero-padded copy. With AVX-512, 32 columns at a time.
-    fn block_direct(&self, mut blk: Block<'_>, width: usize) {
-        let k = self.a.k;
-        let nrows = blk.rows.len();
-        let mut pack = vec![0.0f32; KC.min(k) * NR];
-        let (mut t0, mut t1) = ([0.0f32; MR * NR], [0.0f32; MR * NR]);
-        let wide = if self.level == SimdLevel::Avx512 { 2 * NR } else { NR };
-        let mut js = 0;
-        while js < width {
-            let j = blk.j0 + js;
-            let span = if width - js >= wide { wide } else { NR.min(width - js) };
-            for k0 in (0..k).step_by(KC) {
-                let kc = KC.min(k - k0);
-                let rows_k = &self.b_rows[k0..k0 + kc];
-                if span < NR {
-                    for (kk, &r) in rows_k.iter().enumerate() {
-                        let dst = &mut pack[kk * NR..(kk + 1) * NR];
-                        dst[..span].copy_from_slice(&self.b[r + j..r + j + span]);
-                        dst[span..].fill(0.0);
-                    }
-                }
-                let first = k0 == 0 && !self.accumulate;
-                for r0 in (0..nrows).step_by(MR) {
-                    let mv = MR.min(nrows - r0);
-                    let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
-                    if span == 2 * NR {
-                        self.kernel_rows_pair(mv, kc, ap, rows_k, j, &mut t0, &mut t1);
-                        store_tile(&mut blk.rows, r0, js, mv, NR, &t0, first);
-                        store_tile(&mut blk.rows, r0, js + NR, mv, NR, &t1, first);
-                    } else if span == NR {
-                        self.kernel_rows(mv, kc, ap, rows_k, j, &mut t0);
-                        store_tile(&mut blk.rows, r0, js, mv, NR, &t0, first);
-                    } else {
-                        self.kernel(mv, kc, ap, &pack[..kc * NR], &mut t0);
-                        store_tile(&mut blk.rows, r0, js, mv, span, &t0, first);
-                    }
-                }
-            }
-            js += span;
-        }
-    }
-
-    /// One MR x NR tile with B read in place: step k reads `b[rows[k] + j..][..NR]`.
-    fn kernel_rows(&self, mv: usize, kc: usize, a: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
-        assert!(a.len() >= kc * MR && rows.len() >= kc && self.max_row + j + NR <= self.b.len());
-        #[cfg(target_arch = "x86_64")]
-        if self.level >= SimdLevel::Avx2 {
-            let b = self.b;
-            // SAFETY: the level is at least AVX2 only when the CPU reports AVX2 and FMA; the
-            // assert above covers every read: A `kc * MR` values, B `rows[k] + j .. + NR` with
-            // `rows[k] <= max_row`.
-            unsafe {
-                match mv {
-                    1 => avx2::kernel_nn_rows::<1>(kc, a, b, rows, j, out),
-                    2 => avx2::kernel_nn_rows::<2>(kc, a, b, rows, j, out),
-                    3 => avx2::kernel_nn_rows::<3>(kc, a, b, rows, j, out),
-                    4 => avx2::kernel_nn_rows::<4>(kc, a, b, rows, j, out),
-                    5 => avx2::kernel_nn_rows::<5>(kc, a, b, rows, j, out),
-                    _ => avx2::kernel_nn_rows::<6>(kc, a, b, rows, j, out),
-                }
-            }
-            return;
-        }
-        scalar_kernel_nn_rows(mv, kc, a, self.b, rows, j, out);
-    }
-
-    /// Two adjacent MR x NR tiles (columns `j..j + 2 NR`) with B read in place (AVX-512).
-    #[allow(clippy::too_many_arguments)]
-    fn kernel_rows_pair(&self, mv: usize, kc: usize, a: &[f32], rows: &[usize], j: usize, o0: &mut [f32; MR * NR], o1: &mut [f32; MR * NR]) {
-        assert!(a.len() >= kc * MR && rows.len() >= kc && self.max_row + j + 2 * NR <= self.b.len());
-        #[cfg(target_arch = "x86_64")]
-        if self.level == SimdLevel::Avx512 {
-            let b = self.b;
-            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
-            // covers every read (B `rows[k] + j .. + 2 NR`, A `kc * MR`).
-            unsafe {
-                match mv {
-                    1 => avx512::kernel_nn_rows2::<1>(kc, a, b, rows, j, o0, o1),
-                    2 => avx512::kernel_nn_rows2::<2>(kc, a, b, rows, j, o0, o1),
-                    3 => avx512::kernel_nn_rows2::<3>(kc, a, b, rows, j, o0, o1),
-                    4 => avx512::kernel_nn_rows2::<4>(kc, a, b, rows, j, o0, o1),
-                    5 => avx512::kernel_nn_rows2::<5>(kc, a, b, rows, j, o0, o1),
-                    _ => avx512::kernel_nn_rows2::<6>(kc, a, b, rows, j, o0, o1),
-                }
-            }
-            return;
-        }
-        self.kernel_rows(mv, kc, a, rows, j, o0);
-        self.kernel_rows(mv, kc, a, rows, j + NR, o1);
-    }
-
     /// Copies B rows `k0..k0 + kc`, columns `j..j + ncw` into NR-wide strips
     /// (`pack[s][kk][0..NR]`, zero past `ncw`).
     fn pack_b(&self, pack: &mut [f32], k0: usize, kc: usize, j: usize, ncw: usize) {
         let full = ncw / NR;
-        for kk in 0..kc {
-            let r = self.b_rows[k0 + kk] + j;
-            let src = &self.b[r..r + ncw];
-            for (s, chunk) in src.chunks_exact(NR).enumerate() {
-                // Fixed-size copy: a few vector moves, not a memcpy call.
-                let dst: &mut [f32; NR] = (&mut pack[(s * kc + kk) * NR..(s * kc + kk + 1) * NR]).try_into().expect("NR");
-                *dst = *<&[f32; NR]>::try_from(chunk).expect("NR");
+        let rows = &self.b_rows[k0..k0 + kc];
+        assert!(pack.len() >= ncw.div_ceil(NR) * kc * NR && j + ncw <= self.b.len() - self.max_row);
+        #[cfg(target_arch = "x86_64")]
+        if self.level >= SimdLevel::Avx2 && full > 0 {
+            // SAFETY: the level implies the CPU has the instructions; every row is read at
+            // `rows[kk] + j .. + full * NR <= max_row + j + ncw <= b.len()` and every write is
+            // below `full * kc * NR <= pack.len()` (asserted above).
+            unsafe {
+                if self.level == SimdLevel::Avx512 {
+                    avx512::pack_b(pack, self.b, rows, j, full);
+                } else {
+                    avx2::pack_b(pack, self.b, rows, j, full);
+                }
             }
-            let w = ncw - full * NR;
-            if w > 0 {
+        } else {
+            for (kk, &r) in rows.iter().enumerate() {
+                let src = &self.b[r + j..r + j + full * NR];
+                for (s, chunk) in src.chunks_exact(NR).enumerate() {
+                    pack[(s * kc + kk) * NR..(s * kc + kk + 1) * NR].copy_from_slice(chunk);
+                }
+            }
+        }
+        let w = ncw - full * NR;
+        if w > 0 {
+            for (kk, &r) in rows.iter().enumerate() {
                 let dst = &mut pack[(full * kc + kk) * NR..(full * kc + kk + 1) * NR];
-                dst[..w].copy_from_slice(&src[full * NR..]);
+                dst[..w].copy_from_slice(&self.b[r + j + full * NR..r + j + ncw]);
                 dst[w..].fill(0.0);
             }
         }
@@ -506,24 +447,6 @@ impl NnCtx<'_> {
         }
         self.kernel(mv, kc, a, b0, o0);
         self.kernel(mv, kc, a, b1, o1);
-    }
-}
-
-/// Portable micro-kernel of [`gemm_nn`] reading B in place.
-fn scalar_kernel_nn_rows(mv: usize, kc: usize, a: &[f32], b: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
-    let mut acc = [[0.0f32; NR]; MR];
-    for k in 0..kc {
-        let bk: &[f32; NR] = b[rows[k] + j..rows[k] + j + NR].try_into().expect("NR slice");
-        let ak = &a[k * MR..k * MR + MR];
-        for r in 0..mv {
-            let av = ak[r];
-            for (acc, &bv) in acc[r].iter_mut().zip(bk) {
-                *acc += av * bv;
-            }
-        }
-    }
-    for r in 0..mv {
-        out[r * NR..(r + 1) * NR].copy_from_slice(&acc[r]);
     }
 }
 
@@ -602,9 +525,9 @@ impl NtCtx<'_> {
                         *o = self.b_rows[blk.j0 + c0 + cc] + k0;
                     }
                     self.kernel(rv, cv, kc, &ao[..rv], &bo[..cv], &mut out);
-                    for r in 0..rv {
-                        for cc in 0..cv {
-                            blk.rows[r0 + r][c0 + cc] += out[r][cc];
+                    for (row, o) in blk.rows[r0..r0 + rv].iter_mut().zip(&out) {
+                        for (d, v) in row[c0..c0 + cv].iter_mut().zip(o) {
+                            *d += v;
                         }
                     }
                 }
@@ -612,13 +535,17 @@ impl NtCtx<'_> {
         }
     }
 
+    /// `ao`/`bo` are row offsets plus the K-block start `k0`, with `k0 + kc <= self.k`.
     fn kernel(&self, rv: usize, cv: usize, kc: usize, ao: &[usize], bo: &[usize], out: &mut [[f32; CT]; RT]) {
-        assert!(ao.iter().all(|&o| o + kc <= self.a.len()) && bo.iter().all(|&o| o + kc <= self.b.len()));
+        // gemm_nt checked `row + k <= len` for every row; offsets are `row + k0` with
+        // `k0 + kc <= k`, so every read below is in bounds.
+        debug_assert!(ao.iter().all(|&o| o + kc <= self.a.len()) && bo.iter().all(|&o| o + kc <= self.b.len()));
+        assert!(ao.len() == rv && bo.len() == cv && kc <= self.k);
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
             let (a, b) = (self.a, self.b);
-            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
-            // bounds every row read (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`), and
+            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; every row read
+            // (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`) is in bounds as argued above, and
             // `ao`/`bo` hold `rv`/`cv` entries.
             unsafe {
                 match (rv, cv) {
@@ -641,9 +568,9 @@ impl NtCtx<'_> {
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx2 {
             let (a, b) = (self.a, self.b);
-            // SAFETY: the level is AVX2 only when the CPU reports AVX2 and FMA; the assert above
-            // bounds every row read (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`), and `ao`/`bo`
-            // hold `rv`/`cv` entries.
+            // SAFETY: the level is AVX2 only when the CPU reports AVX2 and FMA; every row read
+            // (`ao[r] .. ao[r] + kc`, `bo[c] .. bo[c] + kc`) is in bounds as argued above, and
+            // `ao`/`bo` hold `rv`/`cv` entries.
             unsafe {
                 match (rv, cv) {
                     (4, 3) => avx2::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
@@ -699,6 +626,26 @@ mod avx2 {
     use super::{hsum8, CT, MR, NR, RT};
     use std::arch::x86_64::*;
 
+    /// `pack[(s * kc + kk) * NR..][..NR] = b[rows[kk] + j + s * NR..][..NR]` for `s < full`,
+    /// `kc = rows.len()`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2; `rows[kk] + j + full * NR <= b.len()` for every `kk` and
+    /// `full * rows.len() * NR <= pack.len()`.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn pack_b(pack: &mut [f32], b: &[f32], rows: &[usize], j: usize, full: usize) {
+        let kc = rows.len();
+        let dst = pack.as_mut_ptr();
+        for (kk, &r) in rows.iter().enumerate() {
+            let src = b.as_ptr().add(r + j);
+            for s in 0..full {
+                let d = dst.add((s * kc + kk) * NR);
+                _mm256_storeu_ps(d, _mm256_loadu_ps(src.add(s * NR)));
+                _mm256_storeu_ps(d.add(8), _mm256_loadu_ps(src.add(s * NR + 8)));
+            }
+        }
+    }
+
     /// `out[r][..] = sum_k a[k * MR + r] * b[k * NR..][..NR]` for `r < R`.
     ///
     /// # Safety
@@ -719,36 +666,6 @@ mod avx2 {
             }
             ap = ap.add(MR);
             bp = bp.add(NR);
-        }
-        let op = out.as_mut_ptr();
-        for (r, acc) in acc.iter().enumerate() {
-            // SAFETY: `r < R <= MR`, so both stores stay inside the MR * NR tile.
-            _mm256_storeu_ps(op.add(r * NR), acc[0]);
-            _mm256_storeu_ps(op.add(r * NR + 8), acc[1]);
-        }
-    }
-
-    /// `out[r][..] = sum_k a[k * MR + r] * b[rows[k] + j ..][..NR]` for `r < R`.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2 and FMA; `a.len() >= kc * MR`, `rows.len() >= kc` and
-    /// `rows[k] + j + NR <= b.len()` for every `k < kc`.
-    #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn kernel_nn_rows<const R: usize>(kc: usize, a: &[f32], b: &[f32], rows: &[usize], j: usize, out: &mut [f32; MR * NR]) {
-        let mut acc = [[_mm256_setzero_ps(); 2]; R];
-        let mut ap = a.as_ptr();
-        let bp = b.as_ptr().add(j);
-        for &row in &rows[..kc] {
-            // SAFETY: `row + j + NR <= b.len()` and `kc * MR <= a.len()` by the contract.
-            let p = bp.add(row);
-            let b0 = _mm256_loadu_ps(p);
-            let b1 = _mm256_loadu_ps(p.add(8));
-            for (r, acc) in acc.iter_mut().enumerate() {
-                let av = _mm256_set1_ps(*ap.add(r));
-                acc[0] = _mm256_fmadd_ps(av, b0, acc[0]);
-                acc[1] = _mm256_fmadd_ps(av, b1, acc[1]);
-            }
-            ap = ap.add(MR);
         }
         let op = out.as_mut_ptr();
         for (r, acc) in acc.iter().enumerate() {
@@ -812,10 +729,30 @@ mod avx2 {
     }
 }
 
+// AVX-512 intrinsics and `target_feature(enable = "avx512f")` are stable since Rust 1.89;
+// the workspace's declared rust-version (1.85) must be raised to 1.89 for this module.
 #[cfg(target_arch = "x86_64")]
+#[allow(clippy::incompatible_msrv)]
 mod avx512 {
     use super::{CT, MR, NR, RT};
     use std::arch::x86_64::*;
+
+    /// As `avx2::pack_b`, one 16-float vector per strip row.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F; `rows[kk] + j + full * NR <= b.len()` for every `kk` and
+    /// `full * rows.len() * NR <= pack.len()`.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn pack_b(pack: &mut [f32], b: &[f32], rows: &[usize], j: usize, full: usize) {
+        let kc = rows.len();
+        let dst = pack.as_mut_ptr();
+        for (kk, &r) in rows.iter().enumerate() {
+            let src = b.as_ptr().add(r + j);
+            for s in 0..full {
+                _mm512_storeu_ps(dst.add((s * kc + kk) * NR), _mm512_loadu_ps(src.add(s * NR)));
+            }
+        }
+    }
 
     /// Two tiles: `o0[r][..] = sum_k a[k * MR + r] * b0[k * NR..][..NR]`, `o1` likewise from
     /// `b1`, for `r < R`.
@@ -840,43 +777,6 @@ mod avx512 {
             ap = ap.add(MR);
             p0 = p0.add(NR);
             p1 = p1.add(NR);
-        }
-        for (r, acc) in acc.iter().enumerate() {
-            // SAFETY: `r < R <= MR`; each store writes NR values of row r of a tile.
-            _mm512_storeu_ps(o0.as_mut_ptr().add(r * NR), acc[0]);
-            _mm512_storeu_ps(o1.as_mut_ptr().add(r * NR), acc[1]);
-        }
-    }
-
-    /// Two adjacent tiles with B read in place: step k reads `b[rows[k] + j..][..2 NR]`.
-    ///
-    /// # Safety
-    /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `rows.len() >= kc` and
-    /// `rows[k] + j + 2 NR <= b.len()` for every `k < kc`.
-    #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel_nn_rows2<const R: usize>(
-        kc: usize,
-        a: &[f32],
-        b: &[f32],
-        rows: &[usize],
-        j: usize,
-        o0: &mut [f32; MR * NR],
-        o1: &mut [f32; MR * NR],
-    ) {
-        let mut acc = [[_mm512_setzero_ps(); 2]; R];
-        let mut ap = a.as_ptr();
-        let bp = b.as_ptr().add(j);
-        for &row in &rows[..kc] {
-            // SAFETY: `row + j + 2 NR <= b.len()` and `kc * MR <= a.len()` by the contract.
-            let p = bp.add(row);
-            let v0 = _mm512_loadu_ps(p);
-            let v1 = _mm512_loadu_ps(p.add(NR));
-            for (r, acc) in acc.iter_mut().enumerate() {
-                let av = _mm512_set1_ps(*ap.add(r));
-                acc[0] = _mm512_fmadd_ps(av, v0, acc[0]);
-                acc[1] = _mm512_fmadd_ps(av, v1, acc[1]);
-            }
-            ap = ap.add(MR);
         }
         for (r, acc) in acc.iter().enumerate() {
             // SAFETY: `r < R <= MR`; each store writes NR values of row r of a tile.

@@ -19,7 +19,11 @@ pub struct RgbaImage {
 impl RgbaImage {
     /// A fully transparent black image.
     pub fn new(width: usize, height: usize) -> Self {
-        RgbaImage { width, height, data: vec![0.0; width * height * 4] }
+        RgbaImage {
+            width,
+            height,
+            data: vec![0.0; width * height * 4],
+        }
     }
 
     /// Number of pixels.
@@ -94,7 +98,11 @@ mod tests {
 
     #[test]
     fn over_white_blends_straight_alpha() {
-        let img = RgbaImage { width: 2, height: 1, data: vec![0.0, 0.0, 0.0, 0.5, 0.2, 0.4, 0.6, 1.0] };
+        let img = RgbaImage {
+            width: 2,
+            height: 1,
+            data: vec![0.0, 0.0, 0.0, 0.5, 0.2, 0.4, 0.6, 1.0],
+        };
         let rgb = img.over([1.0; 3]);
         assert_eq!(rgb, vec![0.5, 0.5, 0.5, 0.2, 0.4, 0.6]);
         assert_eq!(img.pixel(1, 0), Some([0.2, 0.4, 0.6, 1.0]));

@@ -191,7 +191,8 @@ impl Renderer {
             .iter()
             .enumerate()
             .map(|(index, r)| {
-                let net = Net::from_decoded(r).map_err(|source| RendererError::Network { index, source })?;
+                let net = Net::from_decoded(r)
+                    .map_err(|source| RendererError::Network { index, source })?;
                 Ok(RendererSlot {
                     net,
                     input_channels: r.spec.input_channels as usize,
@@ -207,15 +208,22 @@ impl Renderer {
             };
             let bad = |reason: String| RendererError::Material { index, reason };
             let (ti, ri) = (m.neural_texture as usize, m.renderer as usize);
-            let t = textures.get(ti).ok_or_else(|| bad(format!("neural texture {ti} does not exist")))?;
-            let r = renderers.get(ri).ok_or_else(|| bad(format!("renderer {ri} does not exist")))?;
+            let t = textures
+                .get(ti)
+                .ok_or_else(|| bad(format!("neural texture {ti} does not exist")))?;
+            let r = renderers
+                .get(ri)
+                .ok_or_else(|| bad(format!("renderer {ri} does not exist")))?;
             if t.pyramid.channels != r.input_channels {
                 return Err(bad(format!(
                     "neural texture {ti} has {} channels, renderer {ri} takes {}",
                     t.pyramid.channels, r.input_channels
                 )));
             }
-            bindings.push(PrimOwner::Neural { texture: ti, renderer: ri });
+            bindings.push(PrimOwner::Neural {
+                texture: ti,
+                renderer: ri,
+            });
         }
         let owners = scene
             .primitives
@@ -226,7 +234,12 @@ impl Renderer {
                     .unwrap_or(PrimOwner::Core)
             })
             .collect();
-        Ok(Renderer { scene, textures, renderers, owners })
+        Ok(Renderer {
+            scene,
+            textures,
+            renderers,
+            owners,
+        })
     }
 
     /// The triangles this renderer draws. A viewer with its own rasteriser writes indices
@@ -297,7 +310,12 @@ impl Renderer {
     /// assert_eq!(&png_bytes[(24 * 64 + 32) * 4..][..4], &[255, 128, 0, 255]);
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
-    pub fn render(&self, camera: &Camera, width: u32, height: u32) -> Result<RgbaImage, RendererError> {
+    pub fn render(
+        &self,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+    ) -> Result<RgbaImage, RendererError> {
         check_frame(u64::from(width), u64::from(height))?;
         let cam = resized_camera(camera, width, height);
         let gbuf = rasterize(&self.scene, &cam);
@@ -403,16 +421,29 @@ fn neural_texture(t: &DecodedTexture) -> Result<NeuralTexture, String> {
     let mut levels = Vec::with_capacity(t.levels.len());
     for (i, l) in t.levels.iter().enumerate() {
         if l.channels != t.channels {
-            return Err(format!("level {i} has {} channels, the texture {}", l.channels, t.channels));
+            return Err(format!(
+                "level {i} has {} channels, the texture {}",
+                l.channels, t.channels
+            ));
         }
-        levels.push(Level { width: l.width as usize, height: l.height as usize, data: l.data.clone() });
+        levels.push(Level {
+            width: l.width as usize,
+            height: l.height as usize,
+            data: l.data.clone(),
+        });
     }
-    let pyramid = Pyramid::new(channels, levels, wrap(t.wrap_s), wrap(t.wrap_t)).map_err(|e: TextureError| e.to_string())?;
+    let pyramid = Pyramid::new(channels, levels, wrap(t.wrap_s), wrap(t.wrap_t))
+        .map_err(|e: TextureError| e.to_string())?;
     let sh = match &t.view_dependence {
         None => None,
         Some(vd) => {
-            if vd.basis != dnr_format::model::BASIS_SPHERICAL_HARMONICS || vd.degree > sh::MAX_DEGREE {
-                return Err(format!("view dependence `{}` of degree {} is not supported", vd.basis, vd.degree));
+            if vd.basis != dnr_format::model::BASIS_SPHERICAL_HARMONICS
+                || vd.degree > sh::MAX_DEGREE
+            {
+                return Err(format!(
+                    "view dependence `{}` of degree {} is not supported",
+                    vd.basis, vd.degree
+                ));
             }
             let first = vd.first_channel as usize;
             if first.saturating_add(sh::coeff_count(vd.degree)) > channels {

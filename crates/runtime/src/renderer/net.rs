@@ -29,7 +29,9 @@ impl Net {
         let in_ch = spec.input_channels as usize;
         let out_ch = spec.output_channels as usize;
         if !(out_ch == 3 || out_ch == 4) {
-            return Err(NetworkError::Params(format!("outputChannels {out_ch} is not 3 or 4")));
+            return Err(NetworkError::Params(format!(
+                "outputChannels {out_ch} is not 3 or 4"
+            )));
         }
         let shapes: BTreeMap<&str, Vec<usize>> = r
             .tensors
@@ -59,7 +61,11 @@ impl Net {
                     .hidden
                     .as_ref()
                     .ok_or_else(|| NetworkError::Params("`mlp` without `hidden`".into()))?;
-                let params = MlpParams { in_ch, hidden: hidden.iter().map(|&h| h as usize).collect(), out_ch };
+                let params = MlpParams {
+                    in_ch,
+                    hidden: hidden.iter().map(|&h| h as usize).collect(),
+                    out_ch,
+                };
                 check_no_extra(&params.tensor_specs(), names())?;
                 Ok(Net::Mlp(Mlp::new(params, &lookup)?))
             }
@@ -76,7 +82,11 @@ impl Net {
                 let norm = match &spec.normalization {
                     Some(Normalization::Instance) => unet::Norm::Instance,
                     Some(Normalization::None) => unet::Norm::None,
-                    other => return Err(NetworkError::Params(format!("`unet` normalization {other:?}"))),
+                    other => {
+                        return Err(NetworkError::Params(format!(
+                            "`unet` normalization {other:?}"
+                        )))
+                    }
                 };
                 let params = UNetParams {
                     in_ch,
@@ -89,7 +99,9 @@ impl Net {
                 check_no_extra(&params.tensor_specs(), names())?;
                 Ok(Net::Unet(UNet::new(params, &lookup)?))
             }
-            Architecture::Unknown(a) => Err(NetworkError::Params(format!("architecture `{a}` is not supported"))),
+            Architecture::Unknown(a) => Err(NetworkError::Params(format!(
+                "architecture `{a}` is not supported"
+            ))),
         }
     }
 

@@ -62,9 +62,11 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                 let m = pixels.len();
                 // Features of the renderer's pixels, pixel-major, then planar for the GEMM.
                 let mut hwc = vec![0.0f32; m * c];
-                hwc.par_chunks_mut(c).zip(pixels.par_iter()).for_each(|(f, &i)| {
-                    feature(r, g, i as usize, own.texture[i as usize], f);
-                });
+                hwc.par_chunks_mut(c)
+                    .zip(pixels.par_iter())
+                    .for_each(|(f, &i)| {
+                        feature(r, g, i as usize, own.texture[i as usize], f);
+                    });
                 let mut planar = vec![0.0f32; c * m];
                 for (p, f) in hwc.chunks_exact(c).enumerate() {
                     for (k, &v) in f.iter().enumerate() {
@@ -108,40 +110,52 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                 }
                 let four = slot.output_channels == 4;
                 let tp = |k: usize, i: usize| t.data[k * n + i];
-                image.data.par_chunks_mut(4).enumerate().for_each(|(i, px)| {
-                    if own.owner[i] == id {
-                        for (k, v) in px[..3].iter_mut().enumerate() {
-                            *v = unit(tp(k, i));
-                        }
-                        px[3] = if four { unit(tp(3, i)) } else { 1.0 };
-                    }
-                });
-                if four {
-                    // Background: source-over in ascending renderer index, premultiplied.
-                    let (q, a) = background.get_or_insert_with(|| (vec![[0.0; 3]; n], vec![0.0; n]));
-                    q.par_iter_mut().zip(a.par_iter_mut()).enumerate().for_each(|(i, (q, a))| {
-                        if own.owner[i] == BACKGROUND {
-                            let alpha = unit(tp(3, i));
-                            for (k, v) in q.iter_mut().enumerate() {
-                                *v = alpha * unit(tp(k, i)) + (1.0 - alpha) * *v;
+                image
+                    .data
+                    .par_chunks_mut(4)
+                    .enumerate()
+                    .for_each(|(i, px)| {
+                        if own.owner[i] == id {
+                            for (k, v) in px[..3].iter_mut().enumerate() {
+                                *v = unit(tp(k, i));
                             }
-                            *a = alpha + (1.0 - alpha) * *a;
+                            px[3] = if four { unit(tp(3, i)) } else { 1.0 };
                         }
                     });
+                if four {
+                    // Background: source-over in ascending renderer index, premultiplied.
+                    let (q, a) =
+                        background.get_or_insert_with(|| (vec![[0.0; 3]; n], vec![0.0; n]));
+                    q.par_iter_mut()
+                        .zip(a.par_iter_mut())
+                        .enumerate()
+                        .for_each(|(i, (q, a))| {
+                            if own.owner[i] == BACKGROUND {
+                                let alpha = unit(tp(3, i));
+                                for (k, v) in q.iter_mut().enumerate() {
+                                    *v = alpha * unit(tp(k, i)) + (1.0 - alpha) * *v;
+                                }
+                                *a = alpha + (1.0 - alpha) * *a;
+                            }
+                        });
                 }
             }
         }
     }
 
     if let Some((q, a)) = background {
-        image.data.par_chunks_mut(4).enumerate().for_each(|(i, px)| {
-            if own.owner[i] == BACKGROUND && a[i] > 0.0 {
-                for k in 0..3 {
-                    px[k] = finite(q[i][k] / a[i]);
+        image
+            .data
+            .par_chunks_mut(4)
+            .enumerate()
+            .for_each(|(i, px)| {
+                if own.owner[i] == BACKGROUND && a[i] > 0.0 {
+                    for k in 0..3 {
+                        px[k] = finite(q[i][k] / a[i]);
+                    }
+                    px[3] = a[i];
                 }
-                px[3] = a[i];
-            }
-        });
+            });
     }
     Ok(image)
 }
@@ -171,7 +185,10 @@ fn ownership(r: &Renderer, g: &GBuffer) -> Result<Ownership, RendererError> {
                     *o = CORE;
                     Ok(())
                 }
-                Some(&PrimOwner::Neural { texture: ti, renderer: ri }) => {
+                Some(&PrimOwner::Neural {
+                    texture: ti,
+                    renderer: ri,
+                }) => {
                     // Both indices were checked against the asset's arrays (< u32::MAX - 1).
                     *o = ri as u32;
                     *t = ti as u32;
@@ -185,7 +202,11 @@ fn ownership(r: &Renderer, g: &GBuffer) -> Result<Ownership, RendererError> {
             list.push(i as u32);
         }
     }
-    Ok(Ownership { owner, texture, pixels })
+    Ok(Ownership {
+        owner,
+        texture,
+        pixels,
+    })
 }
 
 /// The modulated feature `X` of covered pixel `i` from neural texture `ti`, into `out`
@@ -198,8 +219,15 @@ fn feature(r: &Renderer, g: &GBuffer, i: usize, ti: u32, out: &mut [f32]) {
     t.pyramid.accumulate(u, v, out); // no-op for non-finite uv: F = 0
     if let Some((first, degree)) = t.sh {
         let d = g.view_dir[i];
-        let d = if d.iter().all(|c| c.is_finite()) { d } else { [0.0; 3] };
-        for (j, x) in out[first..first + coeff_count(degree)].iter_mut().enumerate() {
+        let d = if d.iter().all(|c| c.is_finite()) {
+            d
+        } else {
+            [0.0; 3]
+        };
+        for (j, x) in out[first..first + coeff_count(degree)]
+            .iter_mut()
+            .enumerate()
+        {
             *x *= sh_component(j, d);
         }
     }

@@ -3,10 +3,12 @@
 
 use std::collections::BTreeMap;
 
-use dnr_format::model::{Architecture, DType, Decoder, Normalization, Renderer as RendererSpec, ViewDependence};
+use dnr_format::model::{
+    Architecture, DType, Decoder, Normalization, Renderer as RendererSpec, ViewDependence,
+};
 use dnr_format::{
-    Asset, AssetBuilder, LevelCompression, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc,
-    TensorF32, TextureLevel, WrapMode,
+    Asset, AssetBuilder, LevelCompression, MaterialDesc, NeuralTextureDesc, Node, Primitive,
+    RendererDesc, TensorF32, TextureLevel, WrapMode,
 };
 use dnr_runtime::camera::Camera;
 use dnr_runtime::renderer::RgbaImage;
@@ -30,7 +32,12 @@ pub fn quad(cx: f32, cy: f32, half: f32, z: f32, material: Option<usize>) -> Pri
 }
 
 /// A level whose texel `(x, y)` channel `c` is `f(x, y, c)`.
-pub fn level(width: u32, height: u32, channels: u32, mut f: impl FnMut(u32, u32, u32) -> f32) -> TextureLevel {
+pub fn level(
+    width: u32,
+    height: u32,
+    channels: u32,
+    mut f: impl FnMut(u32, u32, u32) -> f32,
+) -> TextureLevel {
     let mut data = Vec::with_capacity((width * height * channels) as usize);
     for y in 0..height {
         for x in 0..width {
@@ -39,17 +46,38 @@ pub fn level(width: u32, height: u32, channels: u32, mut f: impl FnMut(u32, u32,
             }
         }
     }
-    TextureLevel { width, height, channels, data }
+    TextureLevel {
+        width,
+        height,
+        channels,
+        data,
+    }
 }
 
 /// A texture from levels.
-pub fn texture(levels: Vec<TextureLevel>, wrap: WrapMode, view_dependence: Option<ViewDependence>) -> NeuralTextureDesc {
-    NeuralTextureDesc { levels, wrap_s: wrap, wrap_t: wrap, view_dependence, compression: LevelCompression::Zip }
+pub fn texture(
+    levels: Vec<TextureLevel>,
+    wrap: WrapMode,
+    view_dependence: Option<ViewDependence>,
+) -> NeuralTextureDesc {
+    NeuralTextureDesc {
+        levels,
+        wrap_s: wrap,
+        wrap_t: wrap,
+        view_dependence,
+        compression: LevelCompression::Zip,
+    }
 }
 
 /// A one-texel texture of constant colour (remaining channels 0).
 pub fn solid(channels: u32, rgb: [f32; 3]) -> NeuralTextureDesc {
-    texture(vec![level(1, 1, channels, |_, _, c| rgb.get(c as usize).copied().unwrap_or(0.0))], WrapMode::Repeat, None)
+    texture(
+        vec![level(1, 1, channels, |_, _, c| {
+            rgb.get(c as usize).copied().unwrap_or(0.0)
+        })],
+        WrapMode::Repeat,
+        None,
+    )
 }
 
 /// A `none` renderer.
@@ -69,12 +97,24 @@ fn tensor(shape: Vec<u32>, data: Vec<f32>) -> TensorF32 {
 /// its output is `tanh(bias)` at every pixel, covered or not.
 pub fn unet_constant(channels: u32, bias: [f32; 4]) -> RendererDesc {
     let mut t = BTreeMap::new();
-    t.insert("encoder.0.weight".into(), tensor(vec![1, channels, 4, 4], vec![0.0; 16 * channels as usize]));
+    t.insert(
+        "encoder.0.weight".into(),
+        tensor(vec![1, channels, 4, 4], vec![0.0; 16 * channels as usize]),
+    );
     t.insert("encoder.0.bias".into(), tensor(vec![1], vec![0.0]));
-    t.insert("decoder.0.weight".into(), tensor(vec![1, 4, 4, 4], vec![0.0; 64]));
+    t.insert(
+        "decoder.0.weight".into(),
+        tensor(vec![1, 4, 4, 4], vec![0.0; 64]),
+    );
     t.insert("decoder.0.bias".into(), tensor(vec![4], bias.to_vec()));
     RendererDesc {
-        renderer: RendererSpec::unet(channels, 4, vec![1], Decoder::TransposedConv, Normalization::None),
+        renderer: RendererSpec::unet(
+            channels,
+            4,
+            vec![1],
+            Decoder::TransposedConv,
+            Normalization::None,
+        ),
         tensors: t,
         dtype: DType::F32,
     }
@@ -85,9 +125,16 @@ pub fn unet_constant(channels: u32, bias: [f32; 4]) -> RendererDesc {
 pub fn mlp_constant(channels: u32, bias: &[f32]) -> RendererDesc {
     let out = bias.len() as u32;
     let mut t = BTreeMap::new();
-    t.insert("layers.0.weight".into(), tensor(vec![out, channels], vec![0.0; (out * channels) as usize]));
+    t.insert(
+        "layers.0.weight".into(),
+        tensor(vec![out, channels], vec![0.0; (out * channels) as usize]),
+    );
     t.insert("layers.0.bias".into(), tensor(vec![out], bias.to_vec()));
-    RendererDesc { renderer: RendererSpec::mlp(channels, out, vec![]), tensors: t, dtype: DType::F32 }
+    RendererDesc {
+        renderer: RendererSpec::mlp(channels, out, vec![]),
+        tensors: t,
+        dtype: DType::F32,
+    }
 }
 
 /// A builder with one node per mesh (translation given), materials pairing texture `i`
@@ -98,18 +145,28 @@ pub struct Scene {
 
 impl Scene {
     pub fn new() -> Self {
-        Scene { b: AssetBuilder::new() }
+        Scene {
+            b: AssetBuilder::new(),
+        }
     }
 
     /// Adds a mesh of `prims` on a node with `translation`; returns the node index.
     pub fn object(&mut self, prims: Vec<Primitive>, translation: [f32; 3]) -> usize {
         let mesh = self.b.add_mesh(None, prims);
-        self.b.add_node(Node { mesh: Some(mesh), translation, ..Node::default() })
+        self.b.add_node(Node {
+            mesh: Some(mesh),
+            translation,
+            ..Node::default()
+        })
     }
 
     /// Adds a material using texture `t` and renderer `r`.
     pub fn material(&mut self, t: usize, r: usize) -> usize {
-        self.b.add_material(MaterialDesc { name: None, neural_texture: t, renderer: r })
+        self.b.add_material(MaterialDesc {
+            name: None,
+            neural_texture: t,
+            renderer: r,
+        })
     }
 
     pub fn build(&self) -> Asset {
