@@ -114,7 +114,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let mut trainer = Trainer::new(cfg.clone(), &train_views)?;
 
     let bar = progress_bar(opts.progress, cfg);
-    let mut last_psnr = f64::NAN;
+    let last_psnr = std::cell::Cell::new(f64::NAN);
     let mut last_line = 0.0f64;
     let plain = !std::io::stderr().is_terminal();
     let records = train::run(
@@ -124,15 +124,15 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         |t, secs| {
             if let Some(b) = &bar {
                 b.set_position(if cfg.time_budget > 0.0 { secs as u64 } else { t.step });
-                b.set_message(format!("step {} | held-out {:.2} dB", t.step, last_psnr));
+                b.set_message(format!("step {} | held-out {:.2} dB", t.step, last_psnr.get()));
             }
             if opts.progress && plain && secs - last_line >= 10.0 {
                 last_line = secs;
-                eprintln!("step {} | {:.0} s | held-out {:.2} dB", t.step, secs, last_psnr);
+                eprintln!("step {} | {:.0} s | held-out {:.2} dB", t.step, secs, last_psnr.get());
             }
         },
         |r| {
-            last_psnr = r.test_psnr;
+            last_psnr.set(r.test_psnr);
             if opts.progress && plain {
                 eprintln!(
                     "eval: step {} | {:.1} s | loss {:.4} | held-out {:.2} dB, object MSE {:.1}",
@@ -163,7 +163,10 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             path: opts.output.display().to_string(),
             message: e.to_string(),
         })?;
-        let rep = crate::eval::evaluate(&renderer, &capture.test, None);
+        let rep = crate::eval::evaluate(&renderer, &capture.test, None).map_err(|e| BakeError::ReadBack {
+            path: opts.output.display().to_string(),
+            message: e.to_string(),
+        })?;
         (rep.mean.psnr, rep.mean.mse_obj, rep.mean.ssim)
     };
     let train_seconds = records.last().map_or(0.0, |r| r.seconds);

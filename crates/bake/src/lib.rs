@@ -7,3 +7,6 @@ pub mod capture;
 pub mod eval;
 pub mod kernels;
 pub mod bench;
+pub mod bake;
+pub mod export;
+pub mod train;

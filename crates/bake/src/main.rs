@@ -1,4 +1,165 @@
-fn main() {
-    eprintln!("dnr-bake: not yet implemented");
-    std::process::exit(2);
+//! `dnr-bake`: capture folder in, validated `.glb` out.
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use dnr_bake::bake::{bake, BakeOptions};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig};
+
+/// Train a neural texture and deferred neural renderer from posed photographs and write one
+/// self-contained glTF asset (EXT_deferred_neural_rendering, with a plain fallback material).
+///
+/// CAPTURE is a folder in the NeRF `transforms.json` convention (see
+/// shared/capture-format.md): images, camera poses and a proxy mesh with UVs.
+///
+/// Examples:
+///   dnr-bake samples/capture -o sample.glb --preset fast
+///   dnr-bake capture/ -o asset.glb --time-budget 600 --report report.json
+///   dnr-bake capture/ -o asset.glb --mesh proxy.obj --arch none      (texture only)
+#[derive(Parser, Debug)]
+#[command(name = "dnr-bake", version, verbatim_doc_comment)]
+struct Args {
+    /// Capture folder (transforms.json or transforms_{train,test}.json, images, mesh).
+    capture: PathBuf,
+    /// Output asset (.glb). Written to a temporary file and renamed when complete.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Starting point: fast (CPU-sized, minutes), balanced (default), quality, paper
+    /// (the paper's sizes: 512x512, 4 levels, 16 channels, U-Net 64..512).
+    #[arg(long, default_value = "balanced")]
+    preset: Preset,
+    /// Proxy mesh (.glb/.gltf/.obj/.ply) instead of the capture's.
+    #[arg(long)]
+    mesh: Option<PathBuf>,
+    /// Side of the finest texture level in texels.
+    #[arg(long)]
+    resolution: Option<u32>,
+    /// Number of pyramid levels.
+    #[arg(long)]
+    levels: Option<u32>,
+    /// Feature channels per texel (>= 12 with SH, >= 3 otherwise).
+    #[arg(long)]
+    channels: Option<u32>,
+    /// Drop the spherical-harmonics view-dependent layer.
+    #[arg(long)]
+    no_sh: bool,
+    /// Renderer architecture: none (texture only), mlp, unet.
+    #[arg(long)]
+    arch: Option<Arch>,
+    /// Comma-separated U-Net widths (or MLP hidden widths), e.g. 16,32,64,128,128.
+    #[arg(long, value_delimiter = ',')]
+    widths: Option<Vec<u32>>,
+    /// Training crop side in pixels (0 = whole frames).
+    #[arg(long)]
+    crop: Option<u32>,
+    /// Maximum optimisation steps.
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Adam learning rate (texture and network).
+    #[arg(long)]
+    lr: Option<f32>,
+    /// Random seed.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Stop training after this many seconds and export the best state.
+    #[arg(long)]
+    time_budget: Option<f64>,
+    /// Seconds between held-out evaluations.
+    #[arg(long)]
+    eval_every: Option<f64>,
+    /// Write a JSON report (configuration, timed records, final figures).
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Continue a killed bake from its last checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// Print the final figures as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn config(a: &Args) -> TrainConfig {
+    let mut c = TrainConfig::preset(a.preset);
+    if let Some(v) = a.resolution {
+        c.resolution = v;
+    }
+    if let Some(v) = a.levels {
+        c.levels = v;
+    }
+    if let Some(v) = a.channels {
+        c.channels = v;
+    }
+    if a.no_sh {
+        c.sh = false;
+    }
+    if let Some(v) = a.arch {
+        c.arch = v;
+    }
+    if let Some(v) = &a.widths {
+        c.widths = v.clone();
+    }
+    if let Some(v) = a.crop {
+        c.crop = v;
+    }
+    if let Some(v) = a.steps {
+        c.steps = v;
+    }
+    if let Some(v) = a.lr {
+        c.lr_net = v;
+        c.lr_tex = v;
+    }
+    if let Some(v) = a.seed {
+        c.seed = v;
+    }
+    if let Some(v) = a.threads {
+        c.threads = v;
+    }
+    if let Some(v) = a.time_budget {
+        c.time_budget = v;
+    }
+    if let Some(v) = a.eval_every {
+        c.eval_every = v;
+    }
+    c
+}
+
+fn run(a: Args) -> Result<()> {
+    let cfg = config(&a);
+    let opts = BakeOptions {
+        capture: a.capture.clone(),
+        output: a.output.clone(),
+        mesh: a.mesh.clone(),
+        report: a.report.clone(),
+        resume: a.resume,
+        progress: true,
+    };
+    let summary = bake(&cfg, &opts).with_context(|| format!("baking {}", a.capture.display()))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        eprintln!(
+            "wrote {} ({} bytes): held-out PSNR {:.2} dB, object MSE {:.1}, {:.1} s",
+            a.output.display(),
+            summary.asset_bytes,
+            summary.test_psnr,
+            summary.test_mse,
+            summary.seconds
+        );
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("dnr-bake: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
 }

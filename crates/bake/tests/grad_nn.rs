@@ -68,17 +68,34 @@ fn fd(x0: &[f32], f: &dyn Fn(&[f64]) -> f64) -> Vec<f64> {
 fn assert_grad(got: &[f32], want: &[f64], tol: f64, what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: length");
     let rms = (want.iter().map(|v| v * v).sum::<f64>() / want.len().max(1) as f64).sqrt();
-    assert!(rms > 0.0 || want.is_empty(), "{what}: gradient identically zero, test is vacuous");
+    assert!(
+        rms > 0.0 || want.is_empty(),
+        "{what}: gradient identically zero, test is vacuous"
+    );
     for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
         let t = tol * (w.abs() + rms);
-        assert!((g as f64 - w).abs() <= t, "{what}[{i}]: analytic {g}, numeric {w} (tol {t:e})");
+        assert!(
+            (g as f64 - w).abs() <= t,
+            "{what}[{i}]: analytic {g}, numeric {w} (tol {t:e})"
+        );
     }
 }
 
 // ---------------------------------------------------------------- f64 reference forwards
 
 #[allow(clippy::too_many_arguments)]
-fn conv64(x: &[f64], c: usize, h: usize, w: usize, wt: &[f64], b: &[f64], co: usize, k: usize, s: usize, p: usize) -> (usize, usize, Vec<f64>) {
+fn conv64(
+    x: &[f64],
+    c: usize,
+    h: usize,
+    w: usize,
+    wt: &[f64],
+    b: &[f64],
+    co: usize,
+    k: usize,
+    s: usize,
+    p: usize,
+) -> (usize, usize, Vec<f64>) {
     let ho = (h + 2 * p - k) / s + 1;
     let wo = (w + 2 * p - k) / s + 1;
     let mut out = vec![0.0; co * ho * wo];
@@ -92,7 +109,8 @@ fn conv64(x: &[f64], c: usize, h: usize, w: usize, wt: &[f64], b: &[f64], co: us
                             let iy = (oy * s + ky) as isize - p as isize;
                             let ix = (ox * s + kx) as isize - p as isize;
                             if iy >= 0 && ix >= 0 && (iy as usize) < h && (ix as usize) < w {
-                                acc += wt[((o * c + ci) * k + ky) * k + kx] * x[(ci * h + iy as usize) * w + ix as usize];
+                                acc += wt[((o * c + ci) * k + ky) * k + kx]
+                                    * x[(ci * h + iy as usize) * w + ix as usize];
                             }
                         }
                     }
@@ -119,7 +137,9 @@ fn tconv64(x: &[f64], c: usize, h: usize, w: usize, wt: &[f64], b: &[f64], co: u
                             let oy = (2 * iy + ky) as isize - 1;
                             let ox = (2 * ix + kx) as isize - 1;
                             if oy >= 0 && ox >= 0 && (oy as usize) < ho && (ox as usize) < wo {
-                                out[(o * ho + oy as usize) * wo + ox as usize] += x[(ci * h + iy) * w + ix] * wt[((ci * co + o) * 4 + ky) * 4 + kx];
+                                out[(o * ho + oy as usize) * wo + ox as usize] += x
+                                    [(ci * h + iy) * w + ix]
+                                    * wt[((ci * co + o) * 4 + ky) * 4 + kx];
                             }
                         }
                     }
@@ -164,7 +184,13 @@ fn lrelu64(x: &mut [f64]) {
 
 fn check_conv(seed: u64, ci: usize, co: usize, h: usize, w: usize, k: usize, s: usize, p: usize) {
     let mut r = rng(seed);
-    let g = ConvGeom { c_in: ci, c_out: co, k, stride: s, pad: p };
+    let g = ConvGeom {
+        c_in: ci,
+        c_out: co,
+        k,
+        stride: s,
+        pad: p,
+    };
     let x = randt(&mut r, ci, h, w);
     let wt = randv(&mut r, g.weight_len());
     let b = randv(&mut r, co);
@@ -179,9 +205,30 @@ fn check_conv(seed: u64, ci: usize, co: usize, h: usize, w: usize, k: usize, s: 
     let r64 = f64s(&up);
     let (x64, w64, b64) = (f64s(&x.data), f64s(&wt), f64s(&b));
     let what = format!("conv {ci}->{co} {h}x{w} k{k} s{s} p{p}");
-    assert_grad(&sub(&dx.data), &fd(&x.data, &|xx| dot(&r64, &conv64(xx, ci, h, w, &w64, &b64, co, k, s, p).2)), TOL, &format!("{what} dx"));
-    assert_grad(&sub(&dw), &fd(&wt, &|ww| dot(&r64, &conv64(&x64, ci, h, w, ww, &b64, co, k, s, p).2)), TOL, &format!("{what} dw"));
-    assert_grad(&sub(&db), &fd(&b, &|bb| dot(&r64, &conv64(&x64, ci, h, w, &w64, bb, co, k, s, p).2)), TOL, &format!("{what} db"));
+    assert_grad(
+        &sub(&dx.data),
+        &fd(&x.data, &|xx| {
+            dot(&r64, &conv64(xx, ci, h, w, &w64, &b64, co, k, s, p).2)
+        }),
+        TOL,
+        &format!("{what} dx"),
+    );
+    assert_grad(
+        &sub(&dw),
+        &fd(&wt, &|ww| {
+            dot(&r64, &conv64(&x64, ci, h, w, ww, &b64, co, k, s, p).2)
+        }),
+        TOL,
+        &format!("{what} dw"),
+    );
+    assert_grad(
+        &sub(&db),
+        &fd(&b, &|bb| {
+            dot(&r64, &conv64(&x64, ci, h, w, &w64, bb, co, k, s, p).2)
+        }),
+        TOL,
+        &format!("{what} db"),
+    );
 }
 
 #[test]
@@ -199,7 +246,10 @@ fn conv_backward_matches_fd() {
 
 #[test]
 fn conv_transpose_backward_matches_fd() {
-    for (seed, &(ci, co, h, w)) in [(1, 1, 1, 1), (3, 5, 2, 3), (2, 7, 5, 3), (13, 2, 3, 2)].iter().enumerate() {
+    for (seed, &(ci, co, h, w)) in [(1, 1, 1, 1), (3, 5, 2, 3), (2, 7, 5, 3), (13, 2, 3, 2)]
+        .iter()
+        .enumerate()
+    {
         let mut r = rng(10 + seed as u64);
         let x = randt(&mut r, ci, h, w);
         let wt = randv(&mut r, ci * co * 16);
@@ -213,9 +263,26 @@ fn conv_transpose_backward_matches_fd() {
         let r64 = f64s(&up);
         let (x64, w64, b64) = (f64s(&x.data), f64s(&wt), f64s(&b));
         let what = format!("tconv {ci}->{co} {h}x{w}");
-        assert_grad(&dx.data, &fd(&x.data, &|xx| dot(&r64, &tconv64(xx, ci, h, w, &w64, &b64, co))), TOL, &format!("{what} dx"));
-        assert_grad(&dw, &fd(&wt, &|ww| dot(&r64, &tconv64(&x64, ci, h, w, ww, &b64, co))), TOL, &format!("{what} dw"));
-        assert_grad(&db, &fd(&b, &|bb| dot(&r64, &tconv64(&x64, ci, h, w, &w64, bb, co))), TOL, &format!("{what} db"));
+        assert_grad(
+            &dx.data,
+            &fd(&x.data, &|xx| {
+                dot(&r64, &tconv64(xx, ci, h, w, &w64, &b64, co))
+            }),
+            TOL,
+            &format!("{what} dx"),
+        );
+        assert_grad(
+            &dw,
+            &fd(&wt, &|ww| dot(&r64, &tconv64(&x64, ci, h, w, ww, &b64, co))),
+            TOL,
+            &format!("{what} dw"),
+        );
+        assert_grad(
+            &db,
+            &fd(&b, &|bb| dot(&r64, &tconv64(&x64, ci, h, w, &w64, bb, co))),
+            TOL,
+            &format!("{what} db"),
+        );
     }
 }
 
@@ -227,9 +294,17 @@ fn upsample_backward_matches_fd() {
     let y = upsample_nearest2(&x);
     let up = randv(&mut r, y.data.len());
     let mut dx = Tensor::zeros(c, h, w);
-    upsample_nearest2_backward(&Tensor::from_vec(y.c, y.h, y.w, up.clone()).unwrap(), &mut dx);
+    upsample_nearest2_backward(
+        &Tensor::from_vec(y.c, y.h, y.w, up.clone()).unwrap(),
+        &mut dx,
+    );
     let r64 = f64s(&up);
-    assert_grad(&dx.data, &fd(&x.data, &|xx| dot(&r64, &upsample64(xx, c, h, w))), TOL, "upsample dx");
+    assert_grad(
+        &dx.data,
+        &fd(&x.data, &|xx| dot(&r64, &upsample64(xx, c, h, w))),
+        TOL,
+        "upsample dx",
+    );
 }
 
 #[test]
@@ -237,7 +312,10 @@ fn instance_norm_backward_matches_fd() {
     let mut r = rng(21);
     for &(c, h, w) in &[(3, 5, 7), (2, 1, 3), (2, 16, 13)] {
         let mut x = randt(&mut r, c, h, w);
-        x.data.iter_mut().enumerate().for_each(|(i, v)| *v = *v * 2.0 + (i / (h * w)) as f32);
+        x.data
+            .iter_mut()
+            .enumerate()
+            .for_each(|(i, v)| *v = *v * 2.0 + (i / (h * w)) as f32);
         let mut y = x.clone();
         let st = instance_norm(&mut y);
         let up = randv(&mut r, y.data.len());
@@ -263,16 +341,28 @@ fn activations_backward_match_fd() {
     leaky_relu(&mut y, 0.2);
     let mut g = up.clone();
     leaky_relu_backward(&y, &mut g, 0.2);
-    assert_grad(&g, &fd(&x, &|xx| {
-        let mut v = xx.to_vec();
-        lrelu64(&mut v);
-        dot(&r64, &v)
-    }), TOL, "leaky relu");
+    assert_grad(
+        &g,
+        &fd(&x, &|xx| {
+            let mut v = xx.to_vec();
+            lrelu64(&mut v);
+            dot(&r64, &v)
+        }),
+        TOL,
+        "leaky relu",
+    );
     let mut t = x.clone();
     tanh(&mut t);
     let mut g = up.clone();
     tanh_backward(&t, &mut g);
-    assert_grad(&g, &fd(&x, &|xx| xx.iter().zip(&r64).map(|(v, r)| v.tanh() * r).sum()), TOL, "tanh");
+    assert_grad(
+        &g,
+        &fd(&x, &|xx| {
+            xx.iter().zip(&r64).map(|(v, r)| v.tanh() * r).sum()
+        }),
+        TOL,
+        "tanh",
+    );
 }
 
 #[test]
@@ -288,7 +378,12 @@ fn concat_backward_splits() {
     let both: Vec<f32> = x1.data.iter().chain(&x2.data).copied().collect();
     // concat is the identity on the stacked data.
     let num = fd(&both, &|v| dot(&r64, v));
-    assert_grad(&a.data.iter().map(|v| v - 1.0).collect::<Vec<_>>(), &num[..12], TOL, "concat a");
+    assert_grad(
+        &a.data.iter().map(|v| v - 1.0).collect::<Vec<_>>(),
+        &num[..12],
+        TOL,
+        "concat a",
+    );
     assert_grad(&b.data, &num[12..], TOL, "concat b");
 }
 
@@ -305,12 +400,34 @@ fn dense_and_mlp_backward_match_fd() {
     let r64 = f64s(&up);
     let dense64 = |x: &[f64], w: &[f64], b: &[f64], ci: usize, co: usize| -> Vec<f64> {
         let p = x.len() / ci;
-        (0..co * p).map(|i| b[i / p] + (0..ci).map(|c| w[(i / p) * ci + c] * x[c * p + i % p]).sum::<f64>()).collect()
+        (0..co * p)
+            .map(|i| {
+                b[i / p]
+                    + (0..ci)
+                        .map(|c| w[(i / p) * ci + c] * x[c * p + i % p])
+                        .sum::<f64>()
+            })
+            .collect()
     };
     let (x64, w64, b64) = (f64s(&x), f64s(&w), f64s(&b));
-    assert_grad(&dx, &fd(&x, &|v| dot(&r64, &dense64(v, &w64, &b64, ci, co))), TOL, "dense dx");
-    assert_grad(&dw, &fd(&w, &|v| dot(&r64, &dense64(&x64, v, &b64, ci, co))), TOL, "dense dw");
-    assert_grad(&db, &fd(&b, &|v| dot(&r64, &dense64(&x64, &w64, v, ci, co))), TOL, "dense db");
+    assert_grad(
+        &dx,
+        &fd(&x, &|v| dot(&r64, &dense64(v, &w64, &b64, ci, co))),
+        TOL,
+        "dense dx",
+    );
+    assert_grad(
+        &dw,
+        &fd(&w, &|v| dot(&r64, &dense64(&x64, v, &b64, ci, co))),
+        TOL,
+        "dense dw",
+    );
+    assert_grad(
+        &db,
+        &fd(&b, &|v| dot(&r64, &dense64(&x64, &w64, v, ci, co))),
+        TOL,
+        "dense db",
+    );
 
     // Two-layer MLP 5 -> 6 -> 3.
     let dims = [(5usize, 6usize), (6, 3)];
@@ -321,7 +438,8 @@ fn dense_and_mlp_backward_match_fd() {
     let layers: [(&[f32], &[f32]); 2] = [(&w0, &b0), (&w1, &b1)];
     let acts = mlp_forward(&layers, &dims, &x, p).unwrap();
     let up = randv(&mut r, 3 * p);
-    let (mut gw0, mut gb0, mut gw1, mut gb1) = (vec![0.0; 30], vec![0.0; 6], vec![0.0; 18], vec![0.0; 3]);
+    let (mut gw0, mut gb0, mut gw1, mut gb1) =
+        (vec![0.0; 30], vec![0.0; 6], vec![0.0; 18], vec![0.0; 3]);
     let dx = {
         let mut grads: [(&mut [f32], &mut [f32]); 2] = [(&mut gw0, &mut gb0), (&mut gw1, &mut gb1)];
         mlp_backward(&layers, &dims, &acts, &up, &mut grads)
@@ -345,14 +463,27 @@ fn losses_match_fd() {
     let (c, h, w) = (3, 5, 7);
     let pred = randt(&mut r, c, h, w);
     let target = randt(&mut r, c, h, w);
-    let weight: Vec<f32> = (0..h * w).map(|i| if i % 4 == 0 { 0.0 } else { 0.5 + (i % 3) as f32 }).collect();
+    let weight: Vec<f32> = (0..h * w)
+        .map(|i| {
+            if i % 4 == 0 {
+                0.0
+            } else {
+                0.5 + (i % 3) as f32
+            }
+        })
+        .collect();
     let t64 = f64s(&target.data);
     for wopt in [None, Some(&weight[..])] {
         let mut g = Tensor::zeros(c, h, w);
         let l = l1_loss(&pred, &target, wopt, 2.0, &mut g);
         let f = |p: &[f64]| -> f64 {
             let wsum: f64 = wopt.map_or((h * w) as f64, |wt| wt.iter().map(|&v| v as f64).sum());
-            p.iter().zip(&t64).enumerate().map(|(i, (a, b))| wopt.map_or(1.0, |wt| wt[i % (h * w)] as f64) * (a - b).abs()).sum::<f64>() / (c as f64 * wsum)
+            p.iter()
+                .zip(&t64)
+                .enumerate()
+                .map(|(i, (a, b))| wopt.map_or(1.0, |wt| wt[i % (h * w)] as f64) * (a - b).abs())
+                .sum::<f64>()
+                / (c as f64 * wsum)
         };
         assert!((l - f(&f64s(&pred.data))).abs() < 1e-6, "l1 value");
         let num: Vec<f64> = fd(&pred.data, &f).iter().map(|v| 2.0 * v).collect();
@@ -365,7 +496,11 @@ fn losses_match_fd() {
     let l = colour_l1_loss(&feat, &target, &covered, 1.0, &mut g);
     let f = |fe: &[f64]| -> f64 {
         let n = covered.iter().filter(|&&c| c).count() as f64;
-        (0..3 * h * w).filter(|&i| covered[i % (h * w)]).map(|i| (fe[i] - t64[i]).abs()).sum::<f64>() / (3.0 * n)
+        (0..3 * h * w)
+            .filter(|&i| covered[i % (h * w)])
+            .map(|i| (fe[i] - t64[i]).abs())
+            .sum::<f64>()
+            / (3.0 * n)
     };
     assert!((l - f(&f64s(&feat.data))).abs() < 1e-6, "colour l1 value");
     assert_grad(&g.data, &fd(&feat.data, &f), TOL, "colour l1");
@@ -386,7 +521,10 @@ fn losses_match_fd() {
     assert!((val - f(&f64s(&all))).abs() < 1e-6);
     let num = fd(&all, &f);
     assert_grad(&grads.concat()[..18], &num[..18], TOL, "texture reg");
-    assert!(grads[2].iter().all(|&v| v == 0.0), "no regulariser on the coarsest level");
+    assert!(
+        grads[2].iter().all(|&v| v == 0.0),
+        "no regulariser on the coarsest level"
+    );
 }
 
 // ---------------------------------------------------------------- whole U-Net + L1 loss
@@ -408,7 +546,18 @@ fn unet64(p: &UNetParams, ws: &[Vec<f64>], x: &[f64], h: usize, w: usize) -> Vec
     let norm = p.norm == Norm::Instance;
     let mut skips = Vec::new();
     for i in 0..d {
-        let (h2, w2, mut y) = conv64(&cur, ch, hh, ww, &ws[2 * i], &ws[2 * i + 1], p.widths[i], 4, 2, 1);
+        let (h2, w2, mut y) = conv64(
+            &cur,
+            ch,
+            hh,
+            ww,
+            &ws[2 * i],
+            &ws[2 * i + 1],
+            p.widths[i],
+            4,
+            2,
+            1,
+        );
         if norm {
             norm64(&mut y, p.widths[i]);
         }
@@ -422,7 +571,21 @@ fn unet64(p: &UNetParams, ws: &[Vec<f64>], x: &[f64], h: usize, w: usize) -> Vec
         let (_, co) = p.decoder_channels(i);
         let mut y = match p.decoder {
             Decoder::TransposedConv => tconv64(&cur, ch, hh, ww, wt, b, co),
-            Decoder::UpsampleConv => conv64(&upsample64(&cur, ch, hh, ww), ch, 2 * hh, 2 * ww, wt, b, co, 3, 1, 1).2,
+            Decoder::UpsampleConv => {
+                conv64(
+                    &upsample64(&cur, ch, hh, ww),
+                    ch,
+                    2 * hh,
+                    2 * ww,
+                    wt,
+                    b,
+                    co,
+                    3,
+                    1,
+                    1,
+                )
+                .2
+            }
         };
         (hh, ww) = (2 * hh, 2 * ww);
         if i == 0 {
@@ -457,11 +620,19 @@ fn unet_with_l1_loss_matches_fd() {
     ];
     for (k, (widths, decoder, norm, h, w, out_ch)) in cases.into_iter().enumerate() {
         let mut r = rng(30 + k as u64);
-        let p = UNetParams { in_ch: 4, out_ch, widths, decoder, norm };
+        let p = UNetParams {
+            in_ch: 4,
+            out_ch,
+            widths,
+            decoder,
+            norm,
+        };
         let mut net = UNetTrain::init(p.clone(), 7 + k as u64).unwrap();
         let x = randt(&mut r, 4, h, w);
         let target = randt(&mut r, out_ch, h, w);
-        let mask: Vec<f32> = (0..h * w).map(|i| if i % 5 == 2 { 0.0 } else { 1.0 }).collect();
+        let mask: Vec<f32> = (0..h * w)
+            .map(|i| if i % 5 == 2 { 0.0 } else { 1.0 })
+            .collect();
         let (y, acts) = net.forward(&x).unwrap();
         let mut dy = Tensor::zeros(out_ch, h, w);
         l1_loss(&y, &target, Some(&mask), 1.0, &mut dy);
@@ -469,17 +640,30 @@ fn unet_with_l1_loss_matches_fd() {
         let t64 = f64s(&target.data);
         let msum: f64 = mask.iter().map(|&v| v as f64).sum();
         let loss = |o: &[f64]| -> f64 {
-            o.iter().zip(&t64).enumerate().map(|(i, (a, b))| mask[i % (h * w)] as f64 * (a - b).abs()).sum::<f64>() / (out_ch as f64 * msum)
+            o.iter()
+                .zip(&t64)
+                .enumerate()
+                .map(|(i, (a, b))| mask[i % (h * w)] as f64 * (a - b).abs())
+                .sum::<f64>()
+                / (out_ch as f64 * msum)
         };
         let ws: Vec<Vec<f64>> = net.weights.iter().map(|v| f64s(v)).collect();
         let x64 = f64s(&x.data);
         let what = format!("unet case {k}");
-        assert_grad(&dx.data, &fd(&x.data, &|xx| loss(&unet64(&p, &ws, xx, h, w))), 2e-3, &format!("{what} dx"));
+        assert_grad(
+            &dx.data,
+            &fd(&x.data, &|xx| loss(&unet64(&p, &ws, xx, h, w))),
+            2e-3,
+            &format!("{what} dx"),
+        );
         let names = p.tensor_specs();
         for (ti, (name, _)) in names.iter().enumerate() {
             if name.ends_with("bias") && name != "decoder.0.bias" && norm == Norm::Instance {
                 // A bias before instance norm cancels: gradient zero up to rounding.
-                assert!(net.grads[ti].iter().all(|g| g.abs() < 1e-5), "{what} {name} should vanish");
+                assert!(
+                    net.grads[ti].iter().all(|g| g.abs() < 1e-5),
+                    "{what} {name} should vanish"
+                );
                 continue;
             }
             let num = fd(&net.weights[ti], &|v| {
@@ -496,7 +680,10 @@ fn unet_with_l1_loss_matches_fd() {
 
 #[test]
 fn adam_matches_reference_update() {
-    let cfg = AdamConfig { lr: 0.01, ..AdamConfig::default() };
+    let cfg = AdamConfig {
+        lr: 0.01,
+        ..AdamConfig::default()
+    };
     let mut r = rng(40);
     let mut p = randv(&mut r, 37);
     let mut want: Vec<f64> = f64s(&p);
@@ -539,7 +726,10 @@ fn sparse_adam_is_dense_adam_per_row() {
             seen[row as usize].push(g);
         }
         opt.step(&mut params, &mut grads, touched, 0.0);
-        assert!(grads.iter().all(|&g| g == 0.0), "touched gradient rows are cleared");
+        assert!(
+            grads.iter().all(|&g| g == 0.0),
+            "touched gradient rows are cleared"
+        );
     }
     for row in 0..rows {
         let mut p = init[row * width..(row + 1) * width].to_vec();
@@ -554,9 +744,19 @@ fn sparse_adam_is_dense_adam_per_row() {
 
 /// Three Adam steps of the U-Net on random data; returns all parameters.
 fn train_three_steps(seed: u64) -> Vec<Vec<f32>> {
-    let p = UNetParams { in_ch: 5, out_ch: 3, widths: vec![8, 16, 16], decoder: Decoder::TransposedConv, norm: Norm::Instance };
+    let p = UNetParams {
+        in_ch: 5,
+        out_ch: 3,
+        widths: vec![8, 16, 16],
+        decoder: Decoder::TransposedConv,
+        norm: Norm::Instance,
+    };
     let mut net = UNetTrain::init(p, seed).unwrap();
-    let mut opts: Vec<Adam> = net.weights.iter().map(|w| Adam::new(w.len(), AdamConfig::default())).collect();
+    let mut opts: Vec<Adam> = net
+        .weights
+        .iter()
+        .map(|w| Adam::new(w.len(), AdamConfig::default()))
+        .collect();
     let mut r = rng(seed);
     for _ in 0..3 {
         let x = randt(&mut r, 5, 40, 36);
@@ -576,7 +776,11 @@ fn train_three_steps(seed: u64) -> Vec<Vec<f32>> {
 #[test]
 fn training_is_deterministic_across_runs_and_thread_counts() {
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| train_three_steps(3))
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| train_three_steps(3))
     };
     let a = run(2);
     let b = run(2);
@@ -584,19 +788,37 @@ fn training_is_deterministic_across_runs_and_thread_counts() {
     let bits = |v: &Vec<Vec<f32>>| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(bits(&a), bits(&b), "same seed and thread count");
     assert_eq!(bits(&a), bits(&c), "1 vs 2 threads");
-    assert_ne!(bits(&a), bits(&rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| train_three_steps(4))));
+    assert_ne!(
+        bits(&a),
+        bits(
+            &rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap()
+                .install(|| train_three_steps(4))
+        )
+    );
 }
 
 #[test]
 fn training_forward_is_the_runtime_forward() {
     // What is trained is what the runtime draws: identical bits for both decoders.
     for decoder in [Decoder::TransposedConv, Decoder::UpsampleConv] {
-        let p = UNetParams { in_ch: 6, out_ch: 4, widths: vec![4, 8, 8], decoder, norm: Norm::Instance };
+        let p = UNetParams {
+            in_ch: 6,
+            out_ch: 4,
+            widths: vec![4, 8, 8],
+            decoder,
+            norm: Norm::Instance,
+        };
         let net = UNetTrain::init(p.clone(), 5).unwrap();
         let runtime = dnr_runtime::network::unet::UNet::from_map(p, &net.to_map()).unwrap();
         let x = randt(&mut rng(50), 6, 21, 19);
         let (y, _) = net.forward(&x).unwrap();
         let yr = runtime.forward(&x).unwrap();
-        assert_eq!(y.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), yr.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        assert_eq!(
+            y.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            yr.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
     }
 }

@@ -76,6 +76,17 @@ impl Wrap {
 /// index. Exact: IEEE `%` (fmod) is exact, and the result is a small integer.
 #[inline]
 fn rem_euclid(i: f64, n: f64) -> usize {
+    // Fast paths (f64 `%` is a libm call): the usual uv range, one period below it, and
+    // anything an i64 holds exactly.
+    if (0.0..n).contains(&i) {
+        return i as usize;
+    }
+    if i < 0.0 && i >= -n {
+        return (i + n) as usize;
+    }
+    if i.abs() < 4.0e15 {
+        return (i as i64).rem_euclid(n as i64) as usize;
+    }
     let r = i % n;
     let r = if r < 0.0 { r + n } else { r };
     // r is an integer in [0, n); the min guards the cast against any doubt.

@@ -25,7 +25,14 @@ fn gemm_nt_matches_naive() {
 #[test]
 fn conv_k4_s2_p1_matches_naive() {
     let mut r = rng(3);
-    for &(ci, co, h, w) in &[(1, 1, 2, 2), (3, 5, 7, 9), (2, 7, 8, 6), (5, 13, 11, 2), (16, 16, 64, 64), (17, 3, 13, 31)] {
+    for &(ci, co, h, w) in &[
+        (1, 1, 2, 2),
+        (3, 5, 7, 9),
+        (2, 7, 8, 6),
+        (5, 13, 11, 2),
+        (16, 16, 64, 64),
+        (17, 3, 13, 31),
+    ] {
         check_conv(&mut r, ci, co, h, w, 4, 2, 1);
     }
 }
@@ -57,9 +64,24 @@ fn conv_generic_matches_naive() {
 #[test]
 fn conv_rejects_bad_shapes() {
     let x = Tensor::zeros(2, 3, 3);
-    let g = ConvGeom { c_in: 2, c_out: 1, k: 4, stride: 2, pad: 0 };
-    assert!(conv2d(&x, &[0.0; 32], None, g).is_err(), "kernel larger than padded input");
-    let g = ConvGeom { c_in: 3, c_out: 1, k: 1, stride: 1, pad: 0 };
+    let g = ConvGeom {
+        c_in: 2,
+        c_out: 1,
+        k: 4,
+        stride: 2,
+        pad: 0,
+    };
+    assert!(
+        conv2d(&x, &[0.0; 32], None, g).is_err(),
+        "kernel larger than padded input"
+    );
+    let g = ConvGeom {
+        c_in: 3,
+        c_out: 1,
+        k: 1,
+        stride: 1,
+        pad: 0,
+    };
     assert!(conv2d(&x, &[0.0; 3], None, g).is_err(), "channel mismatch");
 }
 
@@ -114,19 +136,30 @@ fn instance_norm_matches_naive() {
 #[test]
 fn activations_match_naive() {
     let mut r = rng(9);
-    let x = randv(&mut r, 1001).iter().map(|v| v * 4.0).collect::<Vec<_>>();
+    let x = randv(&mut r, 1001)
+        .iter()
+        .map(|v| v * 4.0)
+        .collect::<Vec<_>>();
     let mut y = x.clone();
     leaky_relu(&mut y, 0.2);
-    let want: Vec<f64> = x.iter().map(|&v| if v >= 0.0 { v as f64 } else { 0.2 * v as f64 }).collect();
+    let want: Vec<f64> = x
+        .iter()
+        .map(|&v| if v >= 0.0 { v as f64 } else { 0.2 * v as f64 })
+        .collect();
     assert_close(&y, &want, RTOL, "leaky relu");
     // tanh: a dense sweep over [-20, 20] plus tiny values, each within 4 ulp-ish of f64 tanh.
     let mut x: Vec<f32> = (-20_000..=20_000).map(|i| i as f32 * 1e-3).collect();
-    x.extend([1e-30f32, -1e-20, 1e-8, 0.0, -0.0, 0.6249, 0.625, 0.6251, 9.0, 9.2, 50.0, -1e30]);
+    x.extend([
+        1e-30f32, -1e-20, 1e-8, 0.0, -0.0, 0.6249, 0.625, 0.6251, 9.0, 9.2, 50.0, -1e30,
+    ]);
     let mut y = x.clone();
     tanh(&mut y);
     for (&v, &t) in x.iter().zip(&y) {
         let want = (v as f64).tanh();
-        assert!((t as f64 - want).abs() <= 3e-7 * want.abs() + 1e-38, "tanh({v}) = {t}, want {want}");
+        assert!(
+            (t as f64 - want).abs() <= 3e-7 * want.abs() + 1e-38,
+            "tanh({v}) = {t}, want {want}"
+        );
     }
     let mut nan = [f32::NAN];
     tanh(&mut nan);
@@ -144,7 +177,10 @@ fn dense_matches_naive() {
         let mut want = vec![0.0f64; co * p];
         for o in 0..co {
             for px in 0..p {
-                want[o * p + px] = b[o] as f64 + (0..ci).map(|i| w[o * ci + i] as f64 * x[i * p + px] as f64).sum::<f64>();
+                want[o * p + px] = b[o] as f64
+                    + (0..ci)
+                        .map(|i| w[o * ci + i] as f64 * x[i * p + px] as f64)
+                        .sum::<f64>();
             }
         }
         assert_close(&y, &want, RTOL, &format!("dense {ci}->{co} x{p}"));

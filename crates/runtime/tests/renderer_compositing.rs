@@ -152,3 +152,17 @@ fn bad_gbuffers_are_errors_not_panics() {
     let img = renderer.shade(&g).unwrap();
     assert_eq!(px(&img, 0, 0), [0.0, 0.0, 0.0, 1.0]);
 }
+
+#[test]
+fn renderer_is_shareable_between_threads() {
+    fn assert_send_sync<T: Send + Sync>() {}
+    assert_send_sync::<Renderer>();
+    let (renderer, cam) = scene();
+    let images: Vec<_> = std::thread::scope(|s| {
+        let hs: Vec<_> = (0..2)
+            .map(|_| s.spawn(|| renderer.render(&cam, 64, 64).unwrap()))
+            .collect();
+        hs.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert_eq!(images[0], images[1]);
+}

@@ -78,18 +78,17 @@ fn golden(mode: WrapMode) {
             }
             let u = (x as f64 + 0.5 - 16.0) / 32.0;
             let v = (y as f64 + 0.5 - 16.0) / 32.0;
-            for c in 0..3 {
+            for (c, &g) in got[..3].iter().enumerate() {
                 let f = bilinear(&l0, mode, u, v, c) + bilinear(&l1, mode, u, v, c);
                 if !(0.0..=1.0).contains(&f) {
                     clamped += 1;
                 }
                 let want = f.clamp(0.0, 1.0);
-                let err = (got[c] as f64 - want).abs();
+                let err = (g as f64 - want).abs();
                 max_err = max_err.max(err);
                 assert!(
                     err <= 1e-6,
-                    "pixel ({x}, {y}) channel {c}: got {}, want {want}",
-                    got[c]
+                    "pixel ({x}, {y}) channel {c}: got {g}, want {want}"
                 );
             }
             assert_eq!(got[3], 1.0, "alpha at ({x}, {y})");

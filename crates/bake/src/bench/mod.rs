@@ -48,11 +48,25 @@ pub fn sgemm_peak_gflops(reps: usize) -> f64 {
 /// U-Net parameters of the benchmarks: 16 input channels, 3 outputs, transposed-conv decoder,
 /// instance norm.
 pub fn bench_params(widths: &[usize]) -> UNetParams {
-    UNetParams { in_ch: 16, out_ch: 3, widths: widths.to_vec(), decoder: Decoder::TransposedConv, norm: Norm::Instance }
+    UNetParams {
+        in_ch: 16,
+        out_ch: 3,
+        widths: widths.to_vec(),
+        decoder: Decoder::TransposedConv,
+        norm: Norm::Instance,
+    }
 }
 
 fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
-    Tensor::from_vec(c, h, w, (0..c * h * w).map(|_| r.random_range(-1.0f32..1.0)).collect()).expect("sized")
+    Tensor::from_vec(
+        c,
+        h,
+        w,
+        (0..c * h * w)
+            .map(|_| r.random_range(-1.0f32..1.0))
+            .collect(),
+    )
+    .expect("sized")
 }
 
 /// One measured configuration.
@@ -84,7 +98,11 @@ impl BenchRow {
 pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let p = bench_params(widths);
     let mut net = UNetTrain::init(p.clone(), 1).expect("valid params");
-    let mut opts: Vec<Adam> = net.weights.iter().map(|w| Adam::new(w.len(), AdamConfig::default())).collect();
+    let mut opts: Vec<Adam> = net
+        .weights
+        .iter()
+        .map(|w| Adam::new(w.len(), AdamConfig::default()))
+        .collect();
     let mut r = ChaCha8Rng::seed_from_u64(2);
     let x = random_tensor(&mut r, 16, size, size);
     let target = random_tensor(&mut r, 3, size, size);
@@ -100,7 +118,14 @@ pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
             o.step(w, g);
         }
     });
-    BenchRow { kind: "train", widths: widths.to_vec(), size, ms_min: t_min * 1e3, ms_median: t_med * 1e3, gflop: 3.0 * p.flops(size, size) as f64 * 1e-9 }
+    BenchRow {
+        kind: "train",
+        widths: widths.to_vec(),
+        size,
+        ms_min: t_min * 1e3,
+        ms_median: t_med * 1e3,
+        gflop: 3.0 * p.flops(size, size) as f64 * 1e-9,
+    }
 }
 
 /// Inference (runtime `UNet::forward`) on a random `16 x size x size` feature image.
@@ -113,7 +138,14 @@ pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let (t_min, t_med) = time_min_median(reps, || {
         std::hint::black_box(unet.forward(&x).expect("shapes"));
     });
-    BenchRow { kind: "infer", widths: widths.to_vec(), size, ms_min: t_min * 1e3, ms_median: t_med * 1e3, gflop: p.flops(size, size) as f64 * 1e-9 }
+    BenchRow {
+        kind: "infer",
+        widths: widths.to_vec(),
+        size,
+        ms_min: t_min * 1e3,
+        ms_median: t_med * 1e3,
+        gflop: p.flops(size, size) as f64 * 1e-9,
+    }
 }
 
 /// A full benchmark run.
@@ -142,13 +174,25 @@ pub fn run_standard(reps: usize) -> BenchReport {
             rows.push(bench_infer(widths, size, reps));
         }
     }
-    BenchReport { peak_gflops: peak, simd: dnr_runtime::nn::gemm::simd_active(), threads: rayon::current_num_threads(), rows }
+    BenchReport {
+        peak_gflops: peak,
+        simd: dnr_runtime::nn::gemm::simd_active(),
+        threads: rayon::current_num_threads(),
+        rows,
+    }
 }
 
 impl fmt::Display for BenchReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; simd {}; {} threads", self.peak_gflops, self.simd, self.threads)?;
-        writeln!(f, "| kind | widths | size | ms (min) | ms (median) | conv GFLOP | GFLOP/s | of peak |")?;
+        writeln!(
+            f,
+            "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; simd {}; {} threads",
+            self.peak_gflops, self.simd, self.threads
+        )?;
+        writeln!(
+            f,
+            "| kind | widths | size | ms (min) | ms (median) | conv GFLOP | GFLOP/s | of peak |"
+        )?;
         writeln!(f, "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")?;
         for r in &self.rows {
             writeln!(

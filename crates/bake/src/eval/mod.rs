@@ -64,12 +64,12 @@ pub struct EvalReport {
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
     /// The runtime could not render a frame.
-    #[error("frame `{frame}`: {source}")]
+    #[error("frame `{frame}`: {error}")]
     Render {
         /// Frame name.
         frame: String,
         /// The runtime's error.
-        source: RendererError,
+        error: RendererError,
     },
     /// A frame's pixel buffers do not match its camera size.
     #[error("frame `{frame}`: pixel data does not match its {width}x{height} camera")]
@@ -120,9 +120,9 @@ pub fn evaluate(
         let start = Instant::now();
         let render = renderer
             .render(&frame.camera, w, h)
-            .map_err(|source| EvalError::Render {
+            .map_err(|error| EvalError::Render {
                 frame: frame.name.clone(),
-                source,
+                error,
             })?;
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         let truth = truth_rgba(frame);
@@ -295,6 +295,124 @@ mod tests {
         assert_eq!(frame_file_stem(".hidden"), "_.hidden");
         assert_eq!(frame_file_stem(""), "_");
         assert_eq!(frame_file_stem("a b\\c"), "a_b_c");
+    }
+
+    /// A renderer of a camera-facing quad with a 2 x 2 `none` texture, and a frame whose
+    /// photograph is that renderer's own output.
+    fn quad_and_frame() -> (Renderer, Frame) {
+        use dnr_format::model::{Architecture, DType, Renderer as Spec};
+        use dnr_format::{
+            AssetBuilder, LevelCompression, MaterialDesc, NeuralTextureDesc, Node, Primitive,
+            RendererDesc, TextureLevel, WrapMode,
+        };
+        let mut b = AssetBuilder::new();
+        let quad = Primitive {
+            positions: vec![
+                [-1.0, -1.0, 0.0],
+                [1.0, -1.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [-1.0, 1.0, 0.0],
+            ],
+            normals: None,
+            tex_coords: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+            indices: vec![0, 1, 2, 0, 2, 3],
+            material: Some(0),
+        };
+        let mesh = b.add_mesh(None, vec![quad]);
+        b.add_node(Node {
+            mesh: Some(mesh),
+            ..Node::default()
+        });
+        let data = vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0];
+        b.add_neural_texture(NeuralTextureDesc {
+            levels: vec![TextureLevel {
+                width: 2,
+                height: 2,
+                channels: 3,
+                data,
+            }],
+            wrap_s: WrapMode::ClampToEdge,
+            wrap_t: WrapMode::ClampToEdge,
+            view_dependence: None,
+            compression: LevelCompression::None,
+        });
+        b.add_renderer(RendererDesc {
+            renderer: Spec::new(Architecture::None, 3, 3),
+            tensors: Default::default(),
+            dtype: DType::F16,
+        });
+        b.add_material(MaterialDesc {
+            name: None,
+            neural_texture: 0,
+            renderer: 0,
+        });
+        let renderer = Renderer::from_asset(&b.build().unwrap()).unwrap();
+        let camera = dnr_runtime::camera::Camera::look_at(
+            [0.0, 0.0, 3.0].into(),
+            [0.0; 3].into(),
+            45.0,
+            40,
+            30,
+        );
+        let img = renderer.render(&camera, 40, 30).unwrap();
+        let rgb = img
+            .data
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
+        let alpha = img.data.chunks_exact(4).map(|p| p[3]).collect();
+        let frame = Frame {
+            name: "test/quad".into(),
+            image_path: PathBuf::from("quad.png"),
+            camera,
+            distortion: Default::default(),
+            undistorted: false,
+            rgb,
+            alpha,
+            has_alpha: true,
+        };
+        (renderer, frame)
+    }
+
+    #[test]
+    fn evaluate_scores_a_perfect_and_a_perturbed_view() {
+        let (renderer, frame) = quad_and_frame();
+        let dir = std::env::temp_dir().join(format!("dnr-eval-test-{}", std::process::id()));
+        let report = evaluate(&renderer, std::slice::from_ref(&frame), Some(&dir)).unwrap();
+        assert_eq!(report.views.len(), 1);
+        let v = &report.views[0];
+        assert_eq!((v.error.psnr, v.error.mse_obj), (100.0, 0.0));
+        assert!(v.error.obj_pixels > 100, "{}", v.error.obj_pixels);
+        let png = v.image.as_ref().unwrap();
+        assert_eq!(png, &dir.join("test_quad.png"));
+        let saved = image::open(png).unwrap();
+        assert_eq!((saved.width(), saved.height()), (120, 30));
+
+        // Darken the photograph's object by 10 levels: MSE 100 over the object.
+        let mut dark = frame.clone();
+        for (rgb, &a) in dark.rgb.chunks_exact_mut(3).zip(&frame.alpha) {
+            if a > 0.5 {
+                rgb.iter_mut()
+                    .for_each(|c| *c = (*c - 10.0 / 255.0).max(0.0));
+            }
+        }
+        let report = evaluate(&renderer, &[frame.clone(), dark], None).unwrap();
+        let e = report.views[1].error;
+        assert!(
+            e.psnr < 50.0 && e.mse_obj > 20.0 && e.mse_obj <= 100.0,
+            "{e:?}"
+        );
+        assert!((report.mean.psnr - (100.0 + e.psnr) / 2.0).abs() < 1e-9);
+        assert!(report.views[1].image.is_none());
+
+        // Frames whose pixels do not match their camera are an error, not a panic.
+        let mut bad = frame;
+        bad.rgb.pop();
+        assert!(matches!(
+            evaluate(&renderer, &[bad], None),
+            Err(EvalError::FrameData { .. })
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

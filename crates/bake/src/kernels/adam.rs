@@ -19,7 +19,12 @@ pub struct AdamConfig {
 impl Default for AdamConfig {
     /// lr 1e-3, betas (0.9, 0.999), eps 1e-8.
     fn default() -> Self {
-        AdamConfig { lr: 1e-3, beta1: 0.9, beta2: 0.999, eps: 1e-8 }
+        AdamConfig {
+            lr: 1e-3,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+        }
     }
 }
 
@@ -72,7 +77,12 @@ pub struct Adam {
 impl Adam {
     /// State for `len` parameters.
     pub fn new(len: usize, cfg: AdamConfig) -> Self {
-        Adam { cfg, m: vec![0.0; len], v: vec![0.0; len], t: 0 }
+        Adam {
+            cfg,
+            m: vec![0.0; len],
+            v: vec![0.0; len],
+            t: 0,
+        }
     }
 
     /// Steps taken.
@@ -82,13 +92,20 @@ impl Adam {
 
     /// One step: `params -= lr * mhat / (sqrt(vhat) + eps)`. Does not clear `grads`.
     pub fn step(&mut self, params: &mut [f32], grads: &[f32]) {
-        assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "adam: length");
+        assert!(
+            params.len() == self.m.len() && grads.len() == self.m.len(),
+            "adam: length"
+        );
         self.t += 1;
         let k = StepConsts::new(&self.cfg, self.t);
         params
             .par_chunks_mut(CHUNK)
             .zip(grads.par_chunks(CHUNK))
-            .zip(self.m.par_chunks_mut(CHUNK).zip(self.v.par_chunks_mut(CHUNK)))
+            .zip(
+                self.m
+                    .par_chunks_mut(CHUNK)
+                    .zip(self.v.par_chunks_mut(CHUNK)),
+            )
             .for_each(|((p, g), (m, v))| {
                 for i in 0..p.len() {
                     k.update(&mut p[i], g[i], &mut m[i], &mut v[i]);
@@ -98,7 +115,13 @@ impl Adam {
 }
 
 /// One row's parameter, gradient, first and second moment, and step count.
-type RowRefs<'a> = (&'a mut [f32], &'a mut [f32], &'a mut [f32], &'a mut [f32], &'a mut u32);
+type RowRefs<'a> = (
+    &'a mut [f32],
+    &'a mut [f32],
+    &'a mut [f32],
+    &'a mut [f32],
+    &'a mut u32,
+);
 
 /// Lazy Adam over rows of `width` values (texels of a neural texture): a step updates only the
 /// rows it is given, and each row keeps its own step count for the bias correction.
@@ -121,7 +144,13 @@ pub struct SparseAdam {
 impl SparseAdam {
     /// State for `rows` rows of `width` values.
     pub fn new(rows: usize, width: usize, cfg: AdamConfig) -> Self {
-        SparseAdam { cfg, width, m: vec![0.0; rows * width], v: vec![0.0; rows * width], t: vec![0; rows] }
+        SparseAdam {
+            cfg,
+            width,
+            m: vec![0.0; rows * width],
+            v: vec![0.0; rows * width],
+            t: vec![0; rows],
+        }
     }
 
     /// Step count of `row`.
@@ -134,15 +163,24 @@ impl SparseAdam {
     /// (lazy L2: only touched rows decay), then zeroes those gradient rows.
     pub fn step(&mut self, params: &mut [f32], grads: &mut [f32], rows: &[u32], decay: f32) {
         let w = self.width;
-        assert!(params.len() == self.m.len() && grads.len() == self.m.len(), "sparse adam: length");
+        assert!(
+            params.len() == self.m.len() && grads.len() == self.m.len(),
+            "sparse adam: length"
+        );
         let cfg = self.cfg;
         let nrows = self.t.len();
         // Rows are disjoint, so the per-row work runs on the fixed chunks of the row list with
         // each row's slices found by index; results do not depend on the thread count.
         let mut order: Vec<u32> = rows.to_vec();
         order.sort_unstable();
-        assert!(order.windows(2).all(|p| p[0] != p[1]), "sparse adam: duplicate row");
-        assert!(order.last().is_none_or(|&r| (r as usize) < nrows), "sparse adam: row out of range");
+        assert!(
+            order.windows(2).all(|p| p[0] != p[1]),
+            "sparse adam: duplicate row"
+        );
+        assert!(
+            order.last().is_none_or(|&r| (r as usize) < nrows),
+            "sparse adam: row out of range"
+        );
         let mut work: Vec<RowRefs<'_>> = Vec::with_capacity(order.len());
         {
             let mut p_rest = &mut params[..];

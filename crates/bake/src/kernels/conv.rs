@@ -3,8 +3,8 @@
 
 use dnr_runtime::nn::activation::Act;
 use dnr_runtime::nn::conv::{pack_conv_weights, weight_index_parts, ConvGeom, ConvLayout};
-use dnr_runtime::nn::norm::NormStats;
 use dnr_runtime::nn::gemm::{gemm_nn, gemm_nt, PackedA};
+use dnr_runtime::nn::norm::NormStats;
 use dnr_runtime::nn::tensor::{par_min_items, pool};
 use dnr_runtime::nn::{NnError, Tensor};
 use rayon::prelude::*;
@@ -20,7 +20,12 @@ pub struct ConvCache {
 
 /// `y = conv(x, w) + b`.
 /// x: `c_in x H x W`; w: `[c_out, c_in, k, k]`; b: `[c_out]`; y: `c_out x H_out x W_out`.
-pub fn conv_forward(x: &Tensor, w: &[f32], b: &[f32], geom: ConvGeom) -> Result<(Tensor, ConvCache), NnError> {
+pub fn conv_forward(
+    x: &Tensor,
+    w: &[f32],
+    b: &[f32],
+    geom: ConvGeom,
+) -> Result<(Tensor, ConvCache), NnError> {
     let (y, _, cache) = conv_forward_act(x, Act::Identity, (x.h, x.w), w, b, geom, false)?;
     Ok((y, cache))
 }
@@ -39,8 +44,20 @@ pub fn conv_forward_act(
     geom: ConvGeom,
     with_stats: bool,
 ) -> Result<(Tensor, Option<NormStats>, ConvCache), NnError> {
-    if x.c != geom.c_in || w.len() != geom.weight_len() || b.len() != geom.c_out || x.h > size.0 || x.w > size.1 {
-        return Err(NnError::Shape(format!("conv_forward: x {}x{}x{}, w {}, b {} for {geom:?} on {size:?}", x.c, x.h, x.w, w.len(), b.len())));
+    if x.c != geom.c_in
+        || w.len() != geom.weight_len()
+        || b.len() != geom.c_out
+        || x.h > size.0
+        || x.w > size.1
+    {
+        return Err(NnError::Shape(format!(
+            "conv_forward: x {}x{}x{}, w {}, b {} for {geom:?} on {size:?}",
+            x.c,
+            x.h,
+            x.w,
+            w.len(),
+            b.len()
+        )));
     }
     let layout = ConvLayout::new(geom, size.0, size.1)?;
     let buf = layout.gather_act(x, act);
@@ -63,11 +80,14 @@ pub(crate) fn pitched_rows(dy: &Tensor, pitch: usize, margin: usize, slot: usize
     if n == 0 {
         return buf;
     }
-    buf.par_chunks_mut(slot).zip(dy.data.par_chunks(n)).with_min_len(par_min_items(n)).for_each(|(dst, src)| {
-        for y in 0..dy.h {
-            dst[margin + y * pitch..][..dy.w].copy_from_slice(&src[y * dy.w..(y + 1) * dy.w]);
-        }
-    });
+    buf.par_chunks_mut(slot)
+        .zip(dy.data.par_chunks(n))
+        .with_min_len(par_min_items(n))
+        .for_each(|(dst, src)| {
+            for y in 0..dy.h {
+                dst[margin + y * pitch..][..dy.w].copy_from_slice(&src[y * dy.w..(y + 1) * dy.w]);
+            }
+        });
     buf
 }
 
@@ -77,7 +97,12 @@ pub(crate) fn bias_grad(dy: &Tensor, db: &mut [f32]) {
     if n == 0 {
         return;
     }
-    let sums: Vec<f64> = dy.data.par_chunks(n).with_min_len(par_min_items(n)).map(|p| p.iter().map(|&v| v as f64).sum()).collect();
+    let sums: Vec<f64> = dy
+        .data
+        .par_chunks(n)
+        .with_min_len(par_min_items(n))
+        .map(|p| p.iter().map(|&v| v as f64).sum())
+        .collect();
     db.iter_mut().zip(sums).for_each(|(d, s)| *d += s as f32);
 }
 
@@ -85,11 +110,24 @@ pub(crate) fn bias_grad(dy: &Tensor, db: &mut [f32]) {
 /// dy: `c_out x H_out x W_out`; w: `[c_out, c_in, k, k]`.
 /// Adds to dw (`[c_out, c_in, k, k]`) and db (`[c_out]`); adds the input gradient to `dx`
 /// (`c_in x H x W`) when given.
-pub fn conv_backward(cache: &ConvCache, w: &[f32], dy: &Tensor, dw: &mut [f32], db: &mut [f32], dx: Option<&mut Tensor>) {
+pub fn conv_backward(
+    cache: &ConvCache,
+    w: &[f32],
+    dy: &Tensor,
+    dw: &mut [f32],
+    db: &mut [f32],
+    dx: Option<&mut Tensor>,
+) {
     let l = &cache.layout;
     let g = l.geom;
-    assert!(dy.c == g.c_out && dy.h == l.h_out && dy.w == l.w_out, "conv_backward: dy shape");
-    assert!(w.len() == g.weight_len() && dw.len() == w.len() && db.len() == g.c_out, "conv_backward: weight shapes");
+    assert!(
+        dy.c == g.c_out && dy.h == l.h_out && dy.w == l.w_out,
+        "conv_backward: dy shape"
+    );
+    assert!(
+        w.len() == g.weight_len() && dw.len() == w.len() && db.len() == g.c_out,
+        "conv_backward: weight shapes"
+    );
     bias_grad(dy, db);
 
     // Padded output gradient: each plane behind a margin of the largest shift, long enough to
@@ -104,7 +142,16 @@ pub fn conv_backward(cache: &ConvCache, w: &[f32], dy: &Tensor, dw: &mut [f32], 
     let per_o = g.c_in * g.k * g.k;
     let a_rows: Vec<usize> = (0..g.c_out).map(|o| o * slot + margin).collect();
     let mut dwg = pool::scratch(g.c_out * kk);
-    gemm_nt(&dyp, &a_rows, &cache.buf, &l.rows(), l.n, &mut dwg, kk, false);
+    gemm_nt(
+        &dyp,
+        &a_rows,
+        &cache.buf,
+        &l.rows(),
+        l.n,
+        &mut dwg,
+        kk,
+        false,
+    );
     let map: Vec<usize> = (0..kk).map(|k| l.weight_index(k)).collect();
     for o in 0..g.c_out {
         for k in 0..kk {
@@ -118,9 +165,13 @@ pub fn conv_backward(cache: &ConvCache, w: &[f32], dy: &Tensor, dw: &mut [f32], 
     if let Some(dx) = dx {
         let taps = l.taps();
         let (p_part, t_part) = weight_index_parts(g);
-        let cols: Vec<usize> = (0..g.c_out * taps).map(|ot| (ot / taps) * per_o + t_part[ot % taps]).collect();
+        let cols: Vec<usize> = (0..g.c_out * taps)
+            .map(|ot| (ot / taps) * per_o + t_part[ot % taps])
+            .collect();
         let at = PackedA::from_offsets(w, &p_part, &cols);
-        let b_rows: Vec<usize> = (0..g.c_out * taps).map(|ot| (ot / taps) * slot + margin - l.shifts[ot % taps]).collect();
+        let b_rows: Vec<usize> = (0..g.c_out * taps)
+            .map(|ot| (ot / taps) * slot + margin - l.shifts[ot % taps])
+            .collect();
         // Every value scatter_add reads (the first in_len of each plane) is written.
         let mut dbuf = pool::scratch(l.buffer_len());
         gemm_nn(&at, &dyp, &b_rows, in_len, &mut dbuf, l.plane_stride, false);

@@ -22,8 +22,14 @@ pub fn dense_backward(
     db: &mut [f32],
     dx: Option<&mut [f32]>,
 ) {
-    assert!(x.len() == c_in * pixels && dy.len() == c_out * pixels, "dense backward activations");
-    assert!(w.len() == c_out * c_in && dw.len() == w.len() && db.len() == c_out, "dense backward weights");
+    assert!(
+        x.len() == c_in * pixels && dy.len() == c_out * pixels,
+        "dense backward activations"
+    );
+    assert!(
+        w.len() == c_out * c_in && dw.len() == w.len() && db.len() == c_out,
+        "dense backward weights"
+    );
     if pixels == 0 {
         return;
     }
@@ -54,7 +60,12 @@ pub struct MlpActs {
 
 /// MLP forward: dense layers `(w [out, in], b)` with widths `dims` (`(in, out)` per layer),
 /// LeakyReLU(0.2) between, tanh at the end. x: `dims[0].0 x pixels`.
-pub fn mlp_forward(layers: &[(&[f32], &[f32])], dims: &[(usize, usize)], x: &[f32], pixels: usize) -> Result<MlpActs, NnError> {
+pub fn mlp_forward(
+    layers: &[(&[f32], &[f32])],
+    dims: &[(usize, usize)],
+    x: &[f32],
+    pixels: usize,
+) -> Result<MlpActs, NnError> {
     let mut inputs = vec![x.to_vec()];
     let mut cur = x.to_vec();
     for (i, ((w, b), &(ci, co))) in layers.iter().zip(dims).enumerate() {
@@ -66,12 +77,22 @@ pub fn mlp_forward(layers: &[(&[f32], &[f32])], dims: &[(usize, usize)], x: &[f3
             tanh(&mut cur);
         }
     }
-    Ok(MlpActs { inputs, out: cur, pixels })
+    Ok(MlpActs {
+        inputs,
+        out: cur,
+        pixels,
+    })
 }
 
 /// Backward of [`mlp_forward`]: `dout` is dL/d(output after tanh). Adds to each layer's
 /// `(dw, db)`; returns dL/dx (`dims[0].0 x pixels`).
-pub fn mlp_backward(layers: &[(&[f32], &[f32])], dims: &[(usize, usize)], acts: &MlpActs, dout: &[f32], grads: &mut [(&mut [f32], &mut [f32])]) -> Vec<f32> {
+pub fn mlp_backward(
+    layers: &[(&[f32], &[f32])],
+    dims: &[(usize, usize)],
+    acts: &MlpActs,
+    dout: &[f32],
+    grads: &mut [(&mut [f32], &mut [f32])],
+) -> Vec<f32> {
     let p = acts.pixels;
     let mut g = dout.to_vec();
     tanh_backward(&acts.out, &mut g);
@@ -79,7 +100,17 @@ pub fn mlp_backward(layers: &[(&[f32], &[f32])], dims: &[(usize, usize)], acts: 
         let (ci, co) = dims[i];
         let mut dx = vec![0.0f32; ci * p];
         let (dw, db) = &mut grads[i];
-        dense_backward(&acts.inputs[i], layers[i].0, &g, p, ci, co, dw, db, Some(&mut dx));
+        dense_backward(
+            &acts.inputs[i],
+            layers[i].0,
+            &g,
+            p,
+            ci,
+            co,
+            dw,
+            db,
+            Some(&mut dx),
+        );
         if i > 0 {
             // inputs[i] is the LeakyReLU output of layer i - 1 (same sign as its input).
             leaky_relu_backward(&acts.inputs[i], &mut dx, LEAKY_SLOPE);

@@ -7,9 +7,21 @@ use dnr_runtime::nn::Tensor;
 /// plain mean; a 0/1 mask gives the mean over the masked pixels).
 /// pred, target: `C x H x W`; weight: `H * W`. Adds `scale * dL/dpred` to `grad` (subgradient
 /// 0 where pred == target). Returns L (0 when the weights sum to 0).
-pub fn l1_loss(pred: &Tensor, target: &Tensor, weight: Option<&[f32]>, scale: f32, grad: &mut Tensor) -> f64 {
-    assert!(pred.c == target.c && pred.h == target.h && pred.w == target.w, "l1 loss: target shape");
-    assert!(grad.c == pred.c && grad.h == pred.h && grad.w == pred.w, "l1 loss: grad shape");
+pub fn l1_loss(
+    pred: &Tensor,
+    target: &Tensor,
+    weight: Option<&[f32]>,
+    scale: f32,
+    grad: &mut Tensor,
+) -> f64 {
+    assert!(
+        pred.c == target.c && pred.h == target.h && pred.w == target.w,
+        "l1 loss: target shape"
+    );
+    assert!(
+        grad.c == pred.c && grad.h == pred.h && grad.w == pred.w,
+        "l1 loss: grad shape"
+    );
     let n = pred.plane_len();
     if let Some(w) = weight {
         assert_eq!(w.len(), n, "l1 loss: weight length");
@@ -42,9 +54,21 @@ pub fn l1_loss(pred: &Tensor, target: &Tensor, weight: Option<&[f32]>, scale: f3
 /// features: `C x H x W` (C >= 3); target: `3 x H x W` (or more; channels 0..2 used);
 /// covered: `H * W`. Adds `scale * dL/dfeatures` (channels 0..2) to `grad` (`C x H x W`).
 /// Returns L (0 without covered pixels).
-pub fn colour_l1_loss(features: &Tensor, target: &Tensor, covered: &[bool], scale: f32, grad: &mut Tensor) -> f64 {
-    assert!(features.c >= 3 && target.c >= 3 && target.h == features.h && target.w == features.w, "colour l1: shapes");
-    assert!(grad.c == features.c && grad.h == features.h && grad.w == features.w, "colour l1: grad shape");
+pub fn colour_l1_loss(
+    features: &Tensor,
+    target: &Tensor,
+    covered: &[bool],
+    scale: f32,
+    grad: &mut Tensor,
+) -> f64 {
+    assert!(
+        features.c >= 3 && target.c >= 3 && target.h == features.h && target.w == features.w,
+        "colour l1: shapes"
+    );
+    assert!(
+        grad.c == features.c && grad.h == features.h && grad.w == features.w,
+        "colour l1: grad shape"
+    );
     let n = features.plane_len();
     assert_eq!(covered.len(), n, "colour l1: coverage length");
     let count = covered.iter().filter(|&&c| c).count();
@@ -90,7 +114,9 @@ pub fn texture_l2_reg(levels: &[&[f32]], reg: f32, grads: &mut [&mut [f32]]) -> 
         let n = t.len() as f64;
         r += lam as f64 * t.iter().map(|&v| v as f64 * v as f64).sum::<f64>() / n;
         let c = (2.0 * lam as f64 / n) as f32;
-        g.iter_mut().zip(t.iter()).for_each(|(gv, &tv)| *gv += c * tv);
+        g.iter_mut()
+            .zip(t.iter())
+            .for_each(|(gv, &tv)| *gv += c * tv);
     }
     r
 }

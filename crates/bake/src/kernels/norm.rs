@@ -10,21 +10,29 @@ use rayon::prelude::*;
 /// y: the normalised output `c x H x W`; stats: from the forward.
 /// `dx = rstd * (dy - mean(dy) - y * mean(dy * y))`, means in f64.
 pub fn instance_norm_backward(y: &Tensor, stats: &NormStats, g: &mut Tensor) {
-    assert!(y.c == g.c && y.h == g.h && y.w == g.w && stats.rstd.len() == y.c, "instance norm backward shape");
+    assert!(
+        y.c == g.c && y.h == g.h && y.w == g.w && stats.rstd.len() == y.c,
+        "instance norm backward shape"
+    );
     let n = y.plane_len();
     if n == 0 {
         return;
     }
-    g.data.par_chunks_mut(n).zip(y.data.par_chunks(n)).with_min_len(par_min_items(n)).enumerate().for_each(|(c, (gp, yp))| {
-        let (mut s, mut sy) = (0.0f64, 0.0f64);
-        for (&gv, &yv) in gp.iter().zip(yp) {
-            s += gv as f64;
-            sy += gv as f64 * yv as f64;
-        }
-        let (mg, mgy) = ((s / n as f64) as f32, (sy / n as f64) as f32);
-        let r = stats.rstd[c];
-        for (gv, &yv) in gp.iter_mut().zip(yp) {
-            *gv = r * (*gv - mg - yv * mgy);
-        }
-    });
+    g.data
+        .par_chunks_mut(n)
+        .zip(y.data.par_chunks(n))
+        .with_min_len(par_min_items(n))
+        .enumerate()
+        .for_each(|(c, (gp, yp))| {
+            let (mut s, mut sy) = (0.0f64, 0.0f64);
+            for (&gv, &yv) in gp.iter().zip(yp) {
+                s += gv as f64;
+                sy += gv as f64 * yv as f64;
+            }
+            let (mg, mgy) = ((s / n as f64) as f32, (sy / n as f64) as f32);
+            let r = stats.rstd[c];
+            for (gv, &yv) in gp.iter_mut().zip(yp) {
+                *gv = r * (*gv - mg - yv * mgy);
+            }
+        });
 }

@@ -12,8 +12,8 @@ use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
 use dnr_runtime::network::{check_no_extra, fetch_tensors, map_lookup, NetworkError};
 use dnr_runtime::nn::activation::{tanh, Act, LEAKY_SLOPE};
 use dnr_runtime::nn::norm::{instance_norm, normalize, NormStats};
-use dnr_runtime::nn::upsample::upsample_nearest2_concat;
 use dnr_runtime::nn::tensor::pool;
+use dnr_runtime::nn::upsample::upsample_nearest2_concat;
 use dnr_runtime::nn::{NnError, Tensor};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -24,7 +24,11 @@ use std::collections::BTreeMap;
 enum UpCache {
     Tconv(TconvCache),
     /// Input size before the nearest upsample, and the 3x3 conv's cache.
-    UpConv { h: usize, w: usize, conv: ConvCache },
+    UpConv {
+        h: usize,
+        w: usize,
+        conv: ConvCache,
+    },
 }
 
 /// Activations of one [`UNetTrain::forward`], consumed by [`UNetTrain::backward`].
@@ -57,8 +61,20 @@ impl Drop for UNetActs {
                 UpCache::UpConv { conv, .. } => pool::recycle(conv.buf),
             }
         }
-        self.enc_z.drain(..).chain(self.dec_z.drain(..).flatten()).for_each(Tensor::recycle);
-        std::mem::replace(&mut self.out, Tensor { c: 0, h: 0, w: 0, data: Vec::new() }).recycle();
+        self.enc_z
+            .drain(..)
+            .chain(self.dec_z.drain(..).flatten())
+            .for_each(Tensor::recycle);
+        std::mem::replace(
+            &mut self.out,
+            Tensor {
+                c: 0,
+                h: 0,
+                w: 0,
+                data: Vec::new(),
+            },
+        )
+        .recycle();
     }
 }
 
@@ -96,7 +112,10 @@ impl UNetTrain {
     }
 
     /// From a map of `name -> (shape, values)` (exactly the architecture's tensors).
-    pub fn from_map(params: UNetParams, map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>) -> Result<Self, NetworkError> {
+    pub fn from_map(
+        params: UNetParams,
+        map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    ) -> Result<Self, NetworkError> {
         params.validate()?;
         let specs = params.tensor_specs();
         check_no_extra(&specs, map.keys().map(String::as_str))?;
@@ -106,12 +125,21 @@ impl UNetTrain {
 
     fn with_weights(params: UNetParams, weights: Vec<Vec<f32>>) -> Self {
         let grads = weights.iter().map(|w| vec![0.0; w.len()]).collect();
-        UNetTrain { params, weights, grads }
+        UNetTrain {
+            params,
+            weights,
+            grads,
+        }
     }
 
     /// `name -> (shape, values)` of every tensor (what the runtime's `UNet::from_map` takes).
     pub fn to_map(&self) -> BTreeMap<String, (Vec<usize>, Vec<f32>)> {
-        self.params.tensor_specs().into_iter().zip(&self.weights).map(|((n, s), w)| (n, (s, w.clone()))).collect()
+        self.params
+            .tensor_specs()
+            .into_iter()
+            .zip(&self.weights)
+            .map(|((n, s), w)| (n, (s, w.clone())))
+            .collect()
     }
 
     /// Sets every gradient to zero.
@@ -144,7 +172,10 @@ impl UNetTrain {
     pub fn forward(&self, x: &Tensor) -> Result<(Tensor, UNetActs), NnError> {
         let p = &self.params;
         if x.c != p.in_ch || x.h == 0 || x.w == 0 {
-            return Err(NnError::Shape(format!("U-Net training input {}x{}x{} for {} channels", x.c, x.h, x.w, p.in_ch)));
+            return Err(NnError::Shape(format!(
+                "U-Net training input {}x{}x{} for {} channels",
+                x.c, x.h, x.w, p.in_ch
+            )));
         }
         let d = p.depth();
         let (hp, wp) = p.padded_size(x.h, x.w);
@@ -157,7 +188,8 @@ impl UNetTrain {
                 None => (x, Act::Identity, (hp, wp)),
                 Some(prev) => (prev, lrelu, (prev.h, prev.w)),
             };
-            let (mut y, stats, cache) = conv_forward_act(src, act, size, w, b, p.encoder_geom(i), norm)?;
+            let (mut y, stats, cache) =
+                conv_forward_act(src, act, size, w, b, p.encoder_geom(i), norm)?;
             if let Some(st) = &stats {
                 normalize(&mut y, st);
             }
@@ -171,7 +203,11 @@ impl UNetTrain {
         for i in (0..d).rev() {
             let (w, b) = self.dec_w(i);
             let (_, co) = p.decoder_channels(i);
-            let cur = if i == d - 1 { &enc_z[d - 1] } else { dec_z[i + 1].as_ref().expect("decoder above") };
+            let cur = if i == d - 1 {
+                &enc_z[d - 1]
+            } else {
+                dec_z[i + 1].as_ref().expect("decoder above")
+            };
             let mut parts = vec![cur];
             if i < d - 1 {
                 parts.push(&enc_z[i]);
@@ -195,7 +231,17 @@ impl UNetTrain {
             dec[i] = Some(cache);
             if i == 0 {
                 let out = y.crop_top_left(x.h, x.w);
-                let acts = UNetActs { h: x.h, w: x.w, enc, enc_z, enc_stats, dec, dec_z, dec_stats, out: y };
+                let acts = UNetActs {
+                    h: x.h,
+                    w: x.w,
+                    enc,
+                    enc_z,
+                    enc_stats,
+                    dec,
+                    dec_z,
+                    dec_stats,
+                    out: y,
+                };
                 return Ok((out, acts));
             }
             dec_stats[i] = self.norm(&mut y);
@@ -209,11 +255,18 @@ impl UNetTrain {
     pub fn backward(&mut self, acts: &UNetActs, dout: &Tensor) -> Tensor {
         let p = self.params.clone();
         let d = p.depth();
-        assert!(dout.c == p.out_ch && dout.h == acts.h && dout.w == acts.w, "U-Net backward: dout shape");
+        assert!(
+            dout.c == p.out_ch && dout.h == acts.h && dout.w == acts.w,
+            "U-Net backward: dout shape"
+        );
         let mut g = dout.pad_bottom_right(acts.out.h, acts.out.w);
         tanh_backward(&acts.out.data, &mut g.data);
         // Gradients w.r.t. the activated encoder outputs lrelu(z_i), from skips and the chain.
-        let mut de: Vec<Tensor> = acts.enc_z.iter().map(|z| Tensor::zeros(z.c, z.h, z.w)).collect();
+        let mut de: Vec<Tensor> = acts
+            .enc_z
+            .iter()
+            .map(|z| Tensor::zeros(z.c, z.h, z.w))
+            .collect();
         for i in 0..d {
             // g = dL/d(output of up_i before norm), after the chain rule through norm and act.
             if i > 0 {
@@ -228,7 +281,11 @@ impl UNetTrain {
             let mut dx = Tensor::zeros(ci, in_hw.0, in_hw.1);
             self.up_backward(i, acts.dec[i].as_ref().expect("decoder cache"), &g, &mut dx);
             if i == d - 1 {
-                de[d - 1].data.iter_mut().zip(&dx.data).for_each(|(a, b)| *a += b);
+                de[d - 1]
+                    .data
+                    .iter_mut()
+                    .zip(&dx.data)
+                    .for_each(|(a, b)| *a += b);
                 dx.recycle();
             } else {
                 // dx = d concat(a_(i+1), e_i): decoder part first, then the skip.

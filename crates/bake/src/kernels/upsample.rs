@@ -5,7 +5,10 @@ use dnr_runtime::nn::Tensor;
 /// Backward of nearest x2 upsampling: each input pixel receives the sum of its 2x2 block.
 /// dy: `c x 2H x 2W`; adds to dx: `c x H x W`.
 pub fn upsample_nearest2_backward(dy: &Tensor, dx: &mut Tensor) {
-    assert!(dy.c == dx.c && dy.h == 2 * dx.h && dy.w == 2 * dx.w, "upsample backward shape");
+    assert!(
+        dy.c == dx.c && dy.h == 2 * dx.h && dy.w == 2 * dx.w,
+        "upsample backward shape"
+    );
     let (h, w) = (dx.h, dx.w);
     for c in 0..dx.c {
         let src = dy.plane(c);

@@ -43,7 +43,10 @@ impl MlpParams {
 
     /// FLOPs (2 per multiply-add) per evaluated pixel.
     pub fn flops_per_pixel(&self) -> u64 {
-        self.layer_dims().iter().map(|&(a, b)| 2 * (a * b) as u64).sum()
+        self.layer_dims()
+            .iter()
+            .map(|&(a, b)| 2 * (a * b) as u64)
+            .sum()
     }
 
     fn validate(&self) -> Result<(), NetworkError> {
@@ -64,15 +67,25 @@ pub struct Mlp {
 
 impl Mlp {
     /// Builds the MLP, fetching every tensor of [`MlpParams::tensor_specs`] through `lookup`.
-    pub fn new<'a>(params: MlpParams, lookup: &dyn Fn(&str) -> Option<TensorRef<'a>>) -> Result<Self, NetworkError> {
+    pub fn new<'a>(
+        params: MlpParams,
+        lookup: &dyn Fn(&str) -> Option<TensorRef<'a>>,
+    ) -> Result<Self, NetworkError> {
         params.validate()?;
         let mut vals = fetch_tensors(&params.tensor_specs(), lookup)?.into_iter();
-        let layers = params.layer_dims().iter().map(|_| (vals.next().expect("spec"), vals.next().expect("spec"))).collect();
+        let layers = params
+            .layer_dims()
+            .iter()
+            .map(|_| (vals.next().expect("spec"), vals.next().expect("spec")))
+            .collect();
         Ok(Mlp { params, layers })
     }
 
     /// Builds the MLP from a map of `name -> (shape, values)`; extra names are an error.
-    pub fn from_map(params: MlpParams, map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>) -> Result<Self, NetworkError> {
+    pub fn from_map(
+        params: MlpParams,
+        map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    ) -> Result<Self, NetworkError> {
         params.validate()?;
         check_no_extra(&params.tensor_specs(), map.keys().map(String::as_str))?;
         Self::new(params, &map_lookup(map))

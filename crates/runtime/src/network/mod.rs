@@ -61,10 +61,18 @@ pub fn fetch_tensors<'a>(
         .map(|(name, expected)| {
             let (shape, data) = lookup(name).ok_or_else(|| NetworkError::Missing(name.clone()))?;
             if shape != expected.as_slice() {
-                return Err(NetworkError::Shape { name: name.clone(), expected: expected.clone(), got: shape.to_vec() });
+                return Err(NetworkError::Shape {
+                    name: name.clone(),
+                    expected: expected.clone(),
+                    got: shape.to_vec(),
+                });
             }
             if data.len() != expected.iter().product::<usize>() {
-                return Err(NetworkError::Length { name: name.clone(), shape: shape.to_vec(), got: data.len() });
+                return Err(NetworkError::Length {
+                    name: name.clone(),
+                    shape: shape.to_vec(),
+                    got: data.len(),
+                });
             }
             if !data.iter().all(|v| v.is_finite()) {
                 return Err(NetworkError::NonFinite(name.clone()));
@@ -75,7 +83,10 @@ pub fn fetch_tensors<'a>(
 }
 
 /// Errors with the first name in `names` that `specs` does not list (extra tensors are an error).
-pub fn check_no_extra<'n>(specs: &[(String, Vec<usize>)], names: impl IntoIterator<Item = &'n str>) -> Result<(), NetworkError> {
+pub fn check_no_extra<'n>(
+    specs: &[(String, Vec<usize>)],
+    names: impl IntoIterator<Item = &'n str>,
+) -> Result<(), NetworkError> {
     for n in names {
         if !specs.iter().any(|(s, _)| s == n) {
             return Err(NetworkError::Unexpected(n.to_string()));

@@ -11,8 +11,8 @@ use crate::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
 use crate::nn::conv_transpose::TconvLayout;
 use crate::nn::gemm::PackedA;
 use crate::nn::norm::{instance_norm, normalize};
-use crate::nn::upsample::upsample_nearest2_concat;
 use crate::nn::tensor::pool;
+use crate::nn::upsample::upsample_nearest2_concat;
 use crate::nn::{NnError, Tensor};
 use std::collections::BTreeMap;
 
@@ -62,10 +62,14 @@ impl UNetParams {
     pub fn validate(&self) -> Result<(), NetworkError> {
         let d = self.depth();
         if d == 0 || d > MAX_DEPTH {
-            return Err(NetworkError::Params(format!("U-Net depth {d} outside 1..={MAX_DEPTH}")));
+            return Err(NetworkError::Params(format!(
+                "U-Net depth {d} outside 1..={MAX_DEPTH}"
+            )));
         }
         if self.in_ch == 0 || self.out_ch == 0 || self.widths.contains(&0) {
-            return Err(NetworkError::Params("U-Net channel counts must be positive".into()));
+            return Err(NetworkError::Params(
+                "U-Net channel counts must be positive".into(),
+            ));
         }
         Ok(())
     }
@@ -73,8 +77,16 @@ impl UNetParams {
     /// Input and output channels of decoder `i`.
     pub fn decoder_channels(&self, i: usize) -> (usize, usize) {
         let d = self.depth();
-        let c_in = if i == d - 1 { self.widths[d - 1] } else { 2 * self.widths[i] };
-        let c_out = if i == 0 { self.out_ch } else { self.widths[i - 1] };
+        let c_in = if i == d - 1 {
+            self.widths[d - 1]
+        } else {
+            2 * self.widths[i]
+        };
+        let c_out = if i == 0 {
+            self.out_ch
+        } else {
+            self.widths[i - 1]
+        };
         (c_in, c_out)
     }
 
@@ -89,20 +101,35 @@ impl UNetParams {
 
     /// Geometry of encoder `i`.
     pub fn encoder_geom(&self, i: usize) -> ConvGeom {
-        ConvGeom { c_in: self.encoder_in(i), c_out: self.widths[i], k: 4, stride: 2, pad: 1 }
+        ConvGeom {
+            c_in: self.encoder_in(i),
+            c_out: self.widths[i],
+            k: 4,
+            stride: 2,
+            pad: 1,
+        }
     }
 
     /// Geometry of the 3x3 conv of decoder `i` (upsampleConv).
     pub fn decoder_geom(&self, i: usize) -> ConvGeom {
         let (c_in, c_out) = self.decoder_channels(i);
-        ConvGeom { c_in, c_out, k: 3, stride: 1, pad: 1 }
+        ConvGeom {
+            c_in,
+            c_out,
+            k: 3,
+            stride: 1,
+            pad: 1,
+        }
     }
 
     /// Every tensor the architecture names with its shape, encoder first.
     pub fn tensor_specs(&self) -> Vec<(String, Vec<usize>)> {
         let mut v = Vec::new();
         for i in 0..self.depth() {
-            v.push((format!("encoder.{i}.weight"), vec![self.widths[i], self.encoder_in(i), 4, 4]));
+            v.push((
+                format!("encoder.{i}.weight"),
+                vec![self.widths[i], self.encoder_in(i), 4, 4],
+            ));
             v.push((format!("encoder.{i}.bias"), vec![self.widths[i]]));
         }
         for i in 0..self.depth() {
@@ -166,7 +193,10 @@ impl UNet {
     /// Builds the network, fetching every tensor of [`UNetParams::tensor_specs`] through
     /// `lookup` and checking its shape. (Extra tensors cannot be seen through a lookup; see
     /// [`UNet::from_map`] or [`super::check_no_extra`].)
-    pub fn new<'a>(params: UNetParams, lookup: &dyn Fn(&str) -> Option<TensorRef<'a>>) -> Result<Self, NetworkError> {
+    pub fn new<'a>(
+        params: UNetParams,
+        lookup: &dyn Fn(&str) -> Option<TensorRef<'a>>,
+    ) -> Result<Self, NetworkError> {
         params.validate()?;
         let specs = params.tensor_specs();
         let mut vals = fetch_tensors(&specs, lookup)?.into_iter();
@@ -174,7 +204,10 @@ impl UNet {
         let mut enc = Vec::with_capacity(d);
         for i in 0..d {
             let (w, b) = (vals.next().expect("spec"), vals.next().expect("spec"));
-            enc.push(Layer { bias: b, packed: vec![pack_conv_weights(params.encoder_geom(i), &w)] });
+            enc.push(Layer {
+                bias: b,
+                packed: vec![pack_conv_weights(params.encoder_geom(i), &w)],
+            });
         }
         let mut dec = Vec::with_capacity(d);
         for i in 0..d {
@@ -194,7 +227,10 @@ impl UNet {
 
     /// Builds the network from a map of `name -> (shape, values)`; names the architecture does
     /// not list are an error.
-    pub fn from_map(params: UNetParams, map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>) -> Result<Self, NetworkError> {
+    pub fn from_map(
+        params: UNetParams,
+        map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    ) -> Result<Self, NetworkError> {
         params.validate()?;
         check_no_extra(&params.tensor_specs(), map.keys().map(String::as_str))?;
         Self::new(params, &map_lookup(map))
@@ -213,7 +249,10 @@ impl UNet {
     pub fn forward(&self, x: &Tensor) -> Result<Tensor, NnError> {
         let p = &self.params;
         if x.c != p.in_ch {
-            return Err(NnError::Shape(format!("U-Net expects {} input channels, got {}", p.in_ch, x.c)));
+            return Err(NnError::Shape(format!(
+                "U-Net expects {} input channels, got {}",
+                p.in_ch, x.c
+            )));
         }
         if x.h == 0 || x.w == 0 {
             return Ok(Tensor::zeros(p.out_ch, x.h, x.w));
@@ -267,7 +306,14 @@ impl UNet {
     }
 
     /// Decoder `i` on `lrelu(concat(parts))`, output `act`-ed and cropped to `oh x ow`.
-    fn up(&self, i: usize, parts: &[&Tensor], act: Act, oh: usize, ow: usize) -> Result<Tensor, NnError> {
+    fn up(
+        &self,
+        i: usize,
+        parts: &[&Tensor],
+        act: Act,
+        oh: usize,
+        ow: usize,
+    ) -> Result<Tensor, NnError> {
         let layer = &self.dec[i];
         let (ci, co) = self.params.decoder_channels(i);
         let (h, w) = (parts[0].h, parts[0].w);
@@ -297,7 +343,11 @@ impl UNet {
                 if act != Act::Identity {
                     y.data.iter_mut().for_each(|v| *v = act.apply(*v));
                 }
-                Ok(if (oh, ow) == (y.h, y.w) { y } else { y.crop_top_left(oh, ow) })
+                Ok(if (oh, ow) == (y.h, y.w) {
+                    y
+                } else {
+                    y.crop_top_left(oh, ow)
+                })
             }
         }
     }

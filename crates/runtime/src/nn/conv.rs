@@ -10,22 +10,30 @@
 //! - [`LayoutKind::Padded`] (stride 1): the zero-padded input (C planes, k*k taps).
 //! - [`LayoutKind::Im2col`] (anything else): one plane per (c, ky, kx), one tap.
 
-use super::gemm::{gemm_nn, PackedA};
 use super::activation::{lrelu, tanh_f32, Act};
+use super::gemm::{gemm_nn, PackedA};
 use super::norm::{plane_stats, NormStats};
 use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
 use rayon::prelude::*;
 
-/// `dst[i] = act(src[2 i])` for as many values as both hold.
-fn map_stride2(act: Act, src: &[f32], dst: &mut [f32]) {
+/// `dst[i] = act(src[2 i])` for as many values as both hold; returns how many.
+fn map_stride2(act: Act, src: &[f32], dst: &mut [f32]) -> usize {
     let n = dst.len().min(src.len().div_ceil(2));
     let (dst, src) = (&mut dst[..n], &src[..(2 * n).min(src.len())]);
+    // `chunks(2)` (not `step_by(2)`) so the loops vectorise as de-interleaves.
     match act {
-        Act::Identity => dst.iter_mut().zip(src.iter().step_by(2)).for_each(|(d, &s)| *d = s),
-        Act::LeakyRelu(sl) => dst.iter_mut().zip(src.iter().step_by(2)).for_each(|(d, &s)| *d = lrelu(s, sl)),
-        Act::Tanh => dst.iter_mut().zip(src.iter().step_by(2)).for_each(|(d, &s)| *d = tanh_f32(s)),
+        Act::Identity => dst.iter_mut().zip(src.chunks(2)).for_each(|(d, s)| *d = s[0]),
+        Act::LeakyRelu(sl) => dst
+            .iter_mut()
+            .zip(src.chunks(2))
+            .for_each(|(d, s)| *d = lrelu(s[0], sl)),
+        Act::Tanh => dst
+            .iter_mut()
+            .zip(src.chunks(2))
+            .for_each(|(d, s)| *d = tanh_f32(s[0])),
     }
+    n
 }
 
 /// Geometry of a convolution with a square kernel.
@@ -47,7 +55,9 @@ impl ConvGeom {
     /// Output height and width for an `h x w` input.
     pub fn out_size(&self, h: usize, w: usize) -> Result<(usize, usize), NnError> {
         if self.k == 0 || self.stride == 0 {
-            return Err(NnError::Shape("conv kernel and stride must be positive".into()));
+            return Err(NnError::Shape(
+                "conv kernel and stride must be positive".into(),
+            ));
         }
         if h + 2 * self.pad < self.k || w + 2 * self.pad < self.k {
             return Err(NnError::Shape(format!(
@@ -55,7 +65,10 @@ impl ConvGeom {
                 self.pad, self.k
             )));
         }
-        Ok(((h + 2 * self.pad - self.k) / self.stride + 1, (w + 2 * self.pad - self.k) / self.stride + 1))
+        Ok((
+            (h + 2 * self.pad - self.k) / self.stride + 1,
+            (w + 2 * self.pad - self.k) / self.stride + 1,
+        ))
     }
 
     /// Number of weight values (`c_out * c_in * k * k`).
@@ -73,14 +86,25 @@ impl ConvGeom {
 
     fn check(&self, x: &Tensor, w: &[f32], bias: Option<&[f32]>) -> Result<(), NnError> {
         if x.c != self.c_in {
-            return Err(NnError::Shape(format!("conv expects {} input channels, got {}", self.c_in, x.c)));
+            return Err(NnError::Shape(format!(
+                "conv expects {} input channels, got {}",
+                self.c_in, x.c
+            )));
         }
         if w.len() != self.weight_len() {
-            return Err(NnError::Shape(format!("conv weight needs {} values, got {}", self.weight_len(), w.len())));
+            return Err(NnError::Shape(format!(
+                "conv weight needs {} values, got {}",
+                self.weight_len(),
+                w.len()
+            )));
         }
         if let Some(b) = bias {
             if b.len() != self.c_out {
-                return Err(NnError::Shape(format!("conv bias needs {} values, got {}", self.c_out, b.len())));
+                return Err(NnError::Shape(format!(
+                    "conv bias needs {} values, got {}",
+                    self.c_out,
+                    b.len()
+                )));
             }
         }
         Ok(())
@@ -184,9 +208,12 @@ pub fn weight_index_parts(geom: ConvGeom) -> (Vec<usize>, Vec<usize>) {
     let taps = kind.taps(geom);
     let planes = geom.c_in * geom.k * geom.k / taps;
     let tap0 = weight_index(geom, kind, 0);
-    let p_part: Vec<usize> = (0..planes).map(|p| weight_index(geom, kind, p * taps) - tap0).collect();
+    let p_part: Vec<usize> = (0..planes)
+        .map(|p| weight_index(geom, kind, p * taps) - tap0)
+        .collect();
     let t_part: Vec<usize> = (0..taps).map(|t| weight_index(geom, kind, t)).collect();
-    debug_assert!((0..planes * taps).all(|kk| weight_index(geom, kind, kk) == p_part[kk / taps] + t_part[kk % taps]));
+    debug_assert!((0..planes * taps)
+        .all(|kk| weight_index(geom, kind, kk) == p_part[kk / taps] + t_part[kk % taps]));
     (p_part, t_part)
 }
 
@@ -198,11 +225,18 @@ impl ConvLayout {
         let (planes, plane_h, pitch, shifts) = match kind {
             LayoutKind::SpaceToDepth => {
                 let pitch = w_out + 1;
-                (4 * geom.c_in, h_out + 1, pitch, vec![0, 1, pitch, pitch + 1])
+                (
+                    4 * geom.c_in,
+                    h_out + 1,
+                    pitch,
+                    vec![0, 1, pitch, pitch + 1],
+                )
             }
             LayoutKind::Padded => {
                 let pitch = w + 2 * geom.pad;
-                let shifts = (0..geom.k * geom.k).map(|t| (t / geom.k) * pitch + t % geom.k).collect();
+                let shifts = (0..geom.k * geom.k)
+                    .map(|t| (t / geom.k) * pitch + t % geom.k)
+                    .collect();
                 (geom.c_in, h + 2 * geom.pad, pitch, shifts)
             }
             LayoutKind::Im2col => (geom.c_in * geom.k * geom.k, h_out, w_out, vec![0]),
@@ -211,7 +245,20 @@ impl ConvLayout {
         let n = h_out * pitch;
         // Reads reach `n - 1 + max_shift`; keep them inside the plane's own slot.
         let plane_stride = (plane_h * pitch).max(n + max_shift);
-        Ok(ConvLayout { geom, kind, h_in: h, w_in: w, h_out, w_out, planes, plane_h, pitch, plane_stride, shifts, n })
+        Ok(ConvLayout {
+            geom,
+            kind,
+            h_in: h,
+            w_in: w,
+            h_out,
+            w_out,
+            planes,
+            plane_h,
+            pitch,
+            plane_stride,
+            shifts,
+            n,
+        })
     }
 
     /// Taps per plane.
@@ -258,13 +305,22 @@ impl ConvLayout {
                 let (c, a, b) = (p / 4, (p / 2) % 2, p % 2);
                 (c, (2 * row + a) as isize - 1, (2 * col + b) as isize - 1)
             }
-            LayoutKind::Padded => (p, row as isize - g.pad as isize, col as isize - g.pad as isize),
+            LayoutKind::Padded => (
+                p,
+                row as isize - g.pad as isize,
+                col as isize - g.pad as isize,
+            ),
             LayoutKind::Im2col => {
                 let (c, ky, kx) = (p / (g.k * g.k), (p / g.k) % g.k, p % g.k);
-                (c, (row * g.stride + ky) as isize - g.pad as isize, (col * g.stride + kx) as isize - g.pad as isize)
+                (
+                    c,
+                    (row * g.stride + ky) as isize - g.pad as isize,
+                    (col * g.stride + kx) as isize - g.pad as isize,
+                )
             }
         };
-        (y >= 0 && x >= 0 && (y as usize) < self.h_in && (x as usize) < self.w_in).then_some((c, y as usize, x as usize))
+        (y >= 0 && x >= 0 && (y as usize) < self.h_in && (x as usize) < self.w_in)
+            .then_some((c, y as usize, x as usize))
     }
 
     /// Rearranges `x` into the GEMM's B buffer (zeros where the kernel reads padding).
@@ -275,38 +331,65 @@ impl ConvLayout {
     /// [`Self::gather`] of `act(x)`. `x` may be smaller than the layout's input
     /// (`h_in x w_in`): it is zero-extended at the bottom and right (the U-Net's padding).
     pub fn gather_act(&self, x: &Tensor, act: Act) -> Vec<f32> {
-        assert!(x.c == self.geom.c_in && x.h <= self.h_in && x.w <= self.w_in, "conv gather shape");
+        assert!(
+            x.c == self.geom.c_in && x.h <= self.h_in && x.w <= self.w_in,
+            "conv gather shape"
+        );
         let mut buf = pool::scratch(self.buffer_len());
         let (pw, ph) = (self.pitch, self.plane_h);
         let min = par_min_items(self.plane_stride);
-        buf.par_chunks_mut(self.plane_stride).with_min_len(min).enumerate().for_each(|(pl, plane)| {
-            // Zero here rather than up front: the plane is then cache-hot for the writes below.
-            plane.fill(0.0);
-            self.gather_plane(x, act, pl, plane, pw, ph)
-        });
+        buf.par_chunks_mut(self.plane_stride)
+            .with_min_len(min)
+            .enumerate()
+            .for_each(|(pl, plane)| self.gather_plane(x, act, pl, plane, pw, ph));
         buf
     }
 
-    fn gather_plane(&self, x: &Tensor, act: Act, pl: usize, plane: &mut [f32], pw: usize, ph: usize) {
+    /// Fills one plane slot completely (data, padding zeros and slack zeros), so the buffer
+    /// needs no separate zeroing pass.
+    fn gather_plane(
+        &self,
+        x: &Tensor,
+        act: Act,
+        pl: usize,
+        plane: &mut [f32],
+        pw: usize,
+        ph: usize,
+    ) {
+        plane[ph * pw..].fill(0.0);
         match self.kind {
             LayoutKind::SpaceToDepth => {
                 let (c, a, b) = (pl / 4, (pl / 2) % 2, pl % 2);
                 // Plane (a, b) row Y col X holds x[2Y + a - 1][2X + b - 1].
                 let (x0, col0) = if b == 0 { (1, 1) } else { (0, 0) };
                 for row in 0..ph {
-                    let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < x.h) else { continue };
+                    let r = &mut plane[row * pw..(row + 1) * pw];
+                    let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < x.h) else {
+                        r.fill(0.0);
+                        continue;
+                    };
                     let src = &x.data[(c * x.h + y) * x.w..][..x.w];
-                    let dst = &mut plane[row * pw + col0..(row + 1) * pw];
-                    map_stride2(act, &src[x0.min(x.w)..], dst);
+                    r[..col0].fill(0.0);
+                    let written = map_stride2(act, &src[x0.min(x.w)..], &mut r[col0..]);
+                    r[col0 + written..].fill(0.0);
                 }
             }
             LayoutKind::Padded => {
                 let p = self.geom.pad;
-                for y in 0..x.h {
-                    act.map(&x.data[(pl * x.h + y) * x.w..][..x.w], &mut plane[(y + p) * pw + p..][..x.w]);
+                for row in 0..ph {
+                    let r = &mut plane[row * pw..(row + 1) * pw];
+                    match row.checked_sub(p).filter(|&y| y < x.h) {
+                        None => r.fill(0.0),
+                        Some(y) => {
+                            r[..p].fill(0.0);
+                            act.map(&x.data[(pl * x.h + y) * x.w..][..x.w], &mut r[p..p + x.w]);
+                            r[p + x.w..].fill(0.0);
+                        }
+                    }
                 }
             }
             LayoutKind::Im2col => {
+                plane.fill(0.0);
                 for row in 0..ph {
                     for col in 0..pw {
                         if let Some((c, y, xx)) = self.source(pl, row, col) {
@@ -331,42 +414,66 @@ impl ConvLayout {
     /// [`Self::scatter`] added onto `dx` (`c_in x h_in x w_in`).
     pub fn scatter_add(&self, dbuf: &[f32], dx: &mut Tensor) {
         assert!(dbuf.len() >= (self.planes - 1) * self.plane_stride + self.plane_h * self.pitch);
-        assert!(dx.c == self.geom.c_in && dx.h == self.h_in && dx.w == self.w_in, "conv scatter shape");
+        assert!(
+            dx.c == self.geom.c_in && dx.h == self.h_in && dx.w == self.w_in,
+            "conv scatter shape"
+        );
         let (pw, ph, ps) = (self.pitch, self.plane_h, self.plane_stride);
         let n = self.h_in * self.w_in;
         if n == 0 {
             return;
         }
         match self.kind {
-            LayoutKind::SpaceToDepth => dx.data.par_chunks_mut(n).with_min_len(par_min_items(n)).enumerate().for_each(|(c, dplane)| {
-                // Each input pixel appears in exactly one phase plane.
-                for a in 0..2 {
-                    for b in 0..2 {
-                        let plane = &dbuf[(c * 4 + a * 2 + b) * ps..];
-                        let (x0, col0) = if b == 0 { (1, 1) } else { (0, 0) };
-                        for row in 0..ph {
-                            let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < self.h_in) else { continue };
-                            let src = &plane[row * pw + col0..(row + 1) * pw];
-                            let dst = &mut dplane[y * self.w_in..(y + 1) * self.w_in];
-                            dst[x0.min(self.w_in)..].iter_mut().step_by(2).zip(src).for_each(|(d, s)| *d += *s);
+            LayoutKind::SpaceToDepth => dx
+                .data
+                .par_chunks_mut(n)
+                .with_min_len(par_min_items(n))
+                .enumerate()
+                .for_each(|(c, dplane)| {
+                    // Each input pixel appears in exactly one phase plane.
+                    for a in 0..2 {
+                        for b in 0..2 {
+                            let plane = &dbuf[(c * 4 + a * 2 + b) * ps..];
+                            let (x0, col0) = if b == 0 { (1, 1) } else { (0, 0) };
+                            for row in 0..ph {
+                                let Some(y) =
+                                    (2 * row + a).checked_sub(1).filter(|&y| y < self.h_in)
+                                else {
+                                    continue;
+                                };
+                                let src = &plane[row * pw + col0..(row + 1) * pw];
+                                let dst = &mut dplane[y * self.w_in..(y + 1) * self.w_in];
+                                dst[x0.min(self.w_in)..]
+                                    .chunks_mut(2)
+                                    .zip(src)
+                                    .for_each(|(d, s)| d[0] += *s);
+                            }
                         }
                     }
-                }
-            }),
-            LayoutKind::Padded => dx.data.par_chunks_mut(n).with_min_len(par_min_items(n)).enumerate().for_each(|(c, dplane)| {
-                let p = self.geom.pad;
-                for y in 0..self.h_in {
-                    let src = &dbuf[c * ps + (y + p) * pw + p..][..self.w_in];
-                    dplane[y * self.w_in..(y + 1) * self.w_in].iter_mut().zip(src).for_each(|(d, s)| *d += *s);
-                }
-            }),
+                }),
+            LayoutKind::Padded => dx
+                .data
+                .par_chunks_mut(n)
+                .with_min_len(par_min_items(n))
+                .enumerate()
+                .for_each(|(c, dplane)| {
+                    let p = self.geom.pad;
+                    for y in 0..self.h_in {
+                        let src = &dbuf[c * ps + (y + p) * pw + p..][..self.w_in];
+                        dplane[y * self.w_in..(y + 1) * self.w_in]
+                            .iter_mut()
+                            .zip(src)
+                            .for_each(|(d, s)| *d += *s);
+                    }
+                }),
             LayoutKind::Im2col => {
                 for pl in 0..self.planes {
                     let plane = &dbuf[pl * ps..];
                     for row in 0..ph {
                         for col in 0..pw {
                             if let Some((c, y, x)) = self.source(pl, row, col) {
-                                dx.data[(c * self.h_in + y) * self.w_in + x] += plane[row * pw + col];
+                                dx.data[(c * self.h_in + y) * self.w_in + x] +=
+                                    plane[row * pw + col];
                             }
                         }
                     }
@@ -398,7 +505,10 @@ impl ConvLayout {
                     let b = bias.map_or(0.0, |b| b[o]);
                     let src = &raw[o * self.n..(o + 1) * self.n];
                     for y in 0..ho {
-                        for (d, s) in dst[y * wo..(y + 1) * wo].iter_mut().zip(&src[y * self.pitch..]) {
+                        for (d, s) in dst[y * wo..(y + 1) * wo]
+                            .iter_mut()
+                            .zip(&src[y * self.pitch..])
+                        {
                             *d = s + b;
                         }
                     }
@@ -406,7 +516,13 @@ impl ConvLayout {
                 })
                 .collect()
         };
-        (out, NormStats { mean: stats.iter().map(|s| s.0).collect(), rstd: stats.iter().map(|s| s.1).collect() })
+        (
+            out,
+            NormStats {
+                mean: stats.iter().map(|s| s.0).collect(),
+                rstd: stats.iter().map(|s| s.1).collect(),
+            },
+        )
     }
 
     /// Drops the junk columns of the raw GEMM output and adds the bias.
@@ -416,21 +532,33 @@ impl ConvLayout {
         if ho * wo == 0 {
             return out;
         }
-        out.data.par_chunks_mut(ho * wo).with_min_len(par_min_items(ho * wo)).enumerate().for_each(|(o, dst)| {
-            let b = bias.map_or(0.0, |b| b[o]);
-            let src = &raw[o * self.n..(o + 1) * self.n];
-            for y in 0..ho {
-                for (d, s) in dst[y * wo..(y + 1) * wo].iter_mut().zip(&src[y * self.pitch..]) {
-                    *d = s + b;
+        out.data
+            .par_chunks_mut(ho * wo)
+            .with_min_len(par_min_items(ho * wo))
+            .enumerate()
+            .for_each(|(o, dst)| {
+                let b = bias.map_or(0.0, |b| b[o]);
+                let src = &raw[o * self.n..(o + 1) * self.n];
+                for y in 0..ho {
+                    for (d, s) in dst[y * wo..(y + 1) * wo]
+                        .iter_mut()
+                        .zip(&src[y * self.pitch..])
+                    {
+                        *d = s + b;
+                    }
                 }
-            }
-        });
+            });
         out
     }
 }
 
 /// Convolution of `x` with OIHW weights `w` and optional bias.
-pub fn conv2d(x: &Tensor, w: &[f32], bias: Option<&[f32]>, geom: ConvGeom) -> Result<Tensor, NnError> {
+pub fn conv2d(
+    x: &Tensor,
+    w: &[f32],
+    bias: Option<&[f32]>,
+    geom: ConvGeom,
+) -> Result<Tensor, NnError> {
     geom.check(x, w, bias)?;
     let layout = ConvLayout::new(geom, x.h, x.w)?;
     let buf = layout.gather(x);

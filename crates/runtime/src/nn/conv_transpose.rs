@@ -38,7 +38,15 @@ impl TconvLayout {
         let n = h * pitch;
         // Largest shift is 2 * pitch + 2; reads reach n - 1 + that.
         let plane_stride = (h + 2) * pitch + 2;
-        TconvLayout { c_in, c_out, h_in: h, w_in: w, pitch, plane_stride, n }
+        TconvLayout {
+            c_in,
+            c_out,
+            h_in: h,
+            w_in: w,
+            pitch,
+            plane_stride,
+            n,
+        }
     }
 
     /// Number of weight values (`c_in * c_out * 16`).
@@ -72,7 +80,9 @@ impl TconvLayout {
 
     /// Offsets of the GEMM rows (`c * 4 + t`) of phase `ph` in the gathered buffer.
     pub fn rows(&self, ph: usize) -> Vec<usize> {
-        (0..self.c_in * 4).map(|kk| (kk / 4) * self.plane_stride + self.shift(ph, kk % 4)).collect()
+        (0..self.c_in * 4)
+            .map(|kk| (kk / 4) * self.plane_stride + self.shift(ph, kk % 4))
+            .collect()
     }
 
     /// Weights of phase `ph` packed as A (`c_out x 4 c_in`).
@@ -80,7 +90,9 @@ impl TconvLayout {
         assert_eq!(w.len(), self.weight_len(), "transposed conv weights");
         // weight_index(ph, o, kk) = (kk's part) + 16 o.
         let rows: Vec<usize> = (0..self.c_out).map(|o| 16 * o).collect();
-        let cols: Vec<usize> = (0..self.c_in * 4).map(|kk| self.weight_index(ph, 0, kk)).collect();
+        let cols: Vec<usize> = (0..self.c_in * 4)
+            .map(|kk| self.weight_index(ph, 0, kk))
+            .collect();
         PackedA::from_offsets(w, &rows, &cols)
     }
 
@@ -97,18 +109,37 @@ impl TconvLayout {
     /// [`Self::gather`] of `act(concat(parts))`: the parts' channels in order (they sum to
     /// `c_in`), each `h_in x w_in`. Reading the parts in place saves the concat copy.
     pub fn gather_concat(&self, parts: &[&Tensor], act: Act) -> Vec<f32> {
-        assert_eq!(parts.iter().map(|p| p.c).sum::<usize>(), self.c_in, "tconv gather channels");
-        assert!(parts.iter().all(|p| p.h == self.h_in && p.w == self.w_in), "tconv gather size");
+        assert_eq!(
+            parts.iter().map(|p| p.c).sum::<usize>(),
+            self.c_in,
+            "tconv gather channels"
+        );
+        assert!(
+            parts.iter().all(|p| p.h == self.h_in && p.w == self.w_in),
+            "tconv gather size"
+        );
         let mut buf = pool::scratch(self.buffer_len());
-        let planes: Vec<&[f32]> = parts.iter().flat_map(|p| (0..p.c).map(move |c| p.plane(c))).collect();
+        let planes: Vec<&[f32]> = parts
+            .iter()
+            .flat_map(|p| (0..p.c).map(move |c| p.plane(c)))
+            .collect();
         let (h, w) = (self.h_in, self.w_in);
         let min = par_min_items(self.plane_stride);
-        buf.par_chunks_mut(self.plane_stride).zip(planes).with_min_len(min).for_each(|(dst, src)| {
-            dst.fill(0.0);
-            for y in 0..h {
-                act.map(&src[y * w..(y + 1) * w], &mut dst[(y + 1) * self.pitch + 1..][..w]);
-            }
-        });
+        buf.par_chunks_mut(self.plane_stride)
+            .zip(planes)
+            .with_min_len(min)
+            .for_each(|(dst, src)| {
+                // Every value of the slot is written once: data, the zero border, the slack.
+                let p = self.pitch;
+                dst[..p].fill(0.0);
+                for y in 0..h {
+                    let r = &mut dst[(y + 1) * p..(y + 2) * p];
+                    r[0] = 0.0;
+                    act.map(&src[y * w..(y + 1) * w], &mut r[1..w + 1]);
+                    r[w + 1..].fill(0.0);
+                }
+                dst[(h + 1) * p..].fill(0.0);
+            });
         buf
     }
 
@@ -127,37 +158,63 @@ impl TconvLayout {
 
     /// [`Self::interleave`] with `act` applied to every value (after the bias). `out` may be
     /// smaller than `2h x 2w` (a top-left crop): pixels outside it are dropped.
-    pub fn interleave_act(&self, raw: &[f32], ph: usize, bias: Option<&[f32]>, act: Act, out: &mut Tensor) {
-        assert!(out.c == self.c_out && out.h <= 2 * self.h_in && out.w <= 2 * self.w_in, "tconv output shape");
+    pub fn interleave_act(
+        &self,
+        raw: &[f32],
+        ph: usize,
+        bias: Option<&[f32]>,
+        act: Act,
+        out: &mut Tensor,
+    ) {
+        assert!(
+            out.c == self.c_out && out.h <= 2 * self.h_in && out.w <= 2 * self.w_in,
+            "tconv output shape"
+        );
         let (py, px) = (ph / 2, ph % 2);
         let (ow, oh) = (out.w, out.h);
         if ow == 0 || oh == 0 {
             return;
         }
-        out.data.par_chunks_mut(oh * ow).with_min_len(par_min_items(oh * ow)).enumerate().for_each(|(o, dst)| {
-            let b = bias.map_or(0.0, |b| b[o]);
-            let src = &raw[o * self.n..(o + 1) * self.n];
-            for y in (0..self.h_in).take_while(|y| 2 * y + py < oh) {
-                let drow = &mut dst[(2 * y + py) * ow..(2 * y + py + 1) * ow];
-                let cols = (ow - px).div_ceil(2);
-                let s = &src[y * self.pitch..y * self.pitch + cols];
-                for (d, &v) in drow[px..].iter_mut().step_by(2).zip(s) {
-                    *d = act.apply(v + b);
+        out.data
+            .par_chunks_mut(oh * ow)
+            .with_min_len(par_min_items(oh * ow))
+            .enumerate()
+            .for_each(|(o, dst)| {
+                let b = bias.map_or(0.0, |b| b[o]);
+                let src = &raw[o * self.n..(o + 1) * self.n];
+                for y in (0..self.h_in).take_while(|y| 2 * y + py < oh) {
+                    let drow = &mut dst[(2 * y + py) * ow..(2 * y + py + 1) * ow];
+                    let cols = (ow - px).div_ceil(2);
+                    let s = &src[y * self.pitch..y * self.pitch + cols];
+                    match act {
+                        Act::Identity => drow[px..].chunks_mut(2).zip(s).for_each(|(d, &v)| d[0] = v + b),
+                        _ => drow[px..].chunks_mut(2).zip(s).for_each(|(d, &v)| d[0] = act.apply(v + b)),
+                    }
                 }
-            }
-        });
+            });
     }
 }
 
 /// Transposed convolution 4x4 stride 2 padding 1: `c_in x h x w` to `c_out x 2h x 2w`.
 /// `w` is `[c_in, c_out, 4, 4]`.
-pub fn conv_transpose4s2(x: &Tensor, w: &[f32], bias: Option<&[f32]>, c_out: usize) -> Result<Tensor, NnError> {
+pub fn conv_transpose4s2(
+    x: &Tensor,
+    w: &[f32],
+    bias: Option<&[f32]>,
+    c_out: usize,
+) -> Result<Tensor, NnError> {
     let l = TconvLayout::new(x.c, c_out, x.h, x.w);
     if w.len() != l.weight_len() {
-        return Err(NnError::Shape(format!("transposed conv weight needs {} values, got {}", l.weight_len(), w.len())));
+        return Err(NnError::Shape(format!(
+            "transposed conv weight needs {} values, got {}",
+            l.weight_len(),
+            w.len()
+        )));
     }
     if bias.is_some_and(|b| b.len() != c_out) {
-        return Err(NnError::Shape(format!("transposed conv bias needs {c_out} values")));
+        return Err(NnError::Shape(format!(
+            "transposed conv bias needs {c_out} values"
+        )));
     }
     let buf = l.gather(x);
     let mut out = Tensor::scratch(c_out, 2 * x.h, 2 * x.w);

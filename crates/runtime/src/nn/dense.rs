@@ -5,7 +5,14 @@ use super::NnError;
 
 /// `y[o][p] = sum_i w[o][i] x[i][p] + b[o]` for `p < pixels`: `x` is `c_in x pixels` planar,
 /// `w` is `[c_out, c_in]` row-major; returns `c_out x pixels`.
-pub fn dense(x: &[f32], pixels: usize, w: &[f32], b: &[f32], c_in: usize, c_out: usize) -> Result<Vec<f32>, NnError> {
+pub fn dense(
+    x: &[f32],
+    pixels: usize,
+    w: &[f32],
+    b: &[f32],
+    c_in: usize,
+    c_out: usize,
+) -> Result<Vec<f32>, NnError> {
     if x.len() != c_in * pixels || w.len() != c_out * c_in || b.len() != c_out {
         return Err(NnError::Shape(format!(
             "dense {c_in}->{c_out} on {pixels} pixels: x {}, w {}, b {}",

@@ -62,7 +62,11 @@ pub fn set_simd_cap(cap: SimdLevel) {
 
 /// Forces the portable scalar kernels (`true`) or restores detection (`false`).
 pub fn set_force_scalar(on: bool) {
-    set_simd_cap(if on { SimdLevel::Scalar } else { SimdLevel::Avx512 });
+    set_simd_cap(if on {
+        SimdLevel::Scalar
+    } else {
+        SimdLevel::Avx512
+    });
 }
 
 /// The instruction set in use: what the CPU has, limited by [`set_simd_cap`].
@@ -122,20 +126,26 @@ impl PackedA {
     pub fn from_offsets(w: &[f32], rows: &[usize], cols: &[usize]) -> Self {
         let (m, k) = (rows.len(), cols.len());
         let max = rows.iter().max().copied().unwrap_or(0) + cols.iter().max().copied().unwrap_or(0);
-        assert!(m == 0 || k == 0 || max < w.len(), "PackedA: A out of bounds");
+        assert!(
+            m == 0 || k == 0 || max < w.len(),
+            "PackedA: A out of bounds"
+        );
         let tiles = m.div_ceil(MR);
         let mut data = vec![0.0f32; tiles * k * MR];
         if k > 0 {
-            data.par_chunks_mut(k * MR).with_min_len(PAR_MIN_PACK.div_ceil(k * MR)).enumerate().for_each(|(t, panel)| {
-                let r = &rows[t * MR..(t * MR + MR).min(m)];
-                for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
-                    for (d, &ro) in dst.iter_mut().zip(r) {
-                        // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is below
-                        // `w.len()` by the assert above.
-                        *d = unsafe { *w.get_unchecked(ro + c) };
+            data.par_chunks_mut(k * MR)
+                .with_min_len(PAR_MIN_PACK.div_ceil(k * MR))
+                .enumerate()
+                .for_each(|(t, panel)| {
+                    let r = &rows[t * MR..(t * MR + MR).min(m)];
+                    for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
+                        for (d, &ro) in dst.iter_mut().zip(r) {
+                            // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is below
+                            // `w.len()` by the assert above.
+                            *d = unsafe { *w.get_unchecked(ro + c) };
+                        }
                     }
-                }
-            });
+                });
         }
         PackedA { m, k, data }
     }
@@ -145,14 +155,17 @@ impl PackedA {
         let tiles = m.div_ceil(MR);
         let mut data = vec![0.0f32; tiles * k * MR];
         if k > 0 {
-            data.par_chunks_mut(k * MR).with_min_len(PAR_MIN_PACK.div_ceil(k * MR)).enumerate().for_each(|(t, panel)| {
-                let rows = MR.min(m - t * MR);
-                for (kk, dst) in panel.chunks_exact_mut(MR).enumerate() {
-                    for (r, d) in dst[..rows].iter_mut().enumerate() {
-                        *d = f(t * MR + r, kk);
+            data.par_chunks_mut(k * MR)
+                .with_min_len(PAR_MIN_PACK.div_ceil(k * MR))
+                .enumerate()
+                .for_each(|(t, panel)| {
+                    let rows = MR.min(m - t * MR);
+                    for (kk, dst) in panel.chunks_exact_mut(MR).enumerate() {
+                        for (r, d) in dst[..rows].iter_mut().enumerate() {
+                            *d = f(t * MR + r, kk);
+                        }
                     }
-                }
-            });
+                });
         }
         PackedA { m, k, data }
     }
@@ -210,7 +223,11 @@ fn split_blocks<'c>(
         let mut it = col.into_iter();
         for rb in 0..row_bounds.len() - 1 {
             let cnt = row_bounds[rb + 1] - row_bounds[rb];
-            blocks.push(Block { i0: row_bounds[rb], j0: col_bounds[cb], rows: it.by_ref().take(cnt).collect() });
+            blocks.push(Block {
+                i0: row_bounds[rb],
+                j0: col_bounds[cb],
+                rows: it.by_ref().take(cnt).collect(),
+            });
         }
     }
     blocks
@@ -247,19 +264,45 @@ fn grid(m: usize, n: usize, macs: usize, mq: usize, nq: usize) -> (Vec<usize>, V
 /// overwritten.
 ///
 /// Panics if a row of B or C is out of bounds or `b_rows.len() != a.k()` (caller bugs).
-pub fn gemm_nn(a: &PackedA, b: &[f32], b_rows: &[usize], n: usize, c: &mut [f32], ldc: usize, accumulate: bool) {
+pub fn gemm_nn(
+    a: &PackedA,
+    b: &[f32],
+    b_rows: &[usize],
+    n: usize,
+    c: &mut [f32],
+    ldc: usize,
+    accumulate: bool,
+) {
     let (m, k) = (a.m, a.k);
-    assert_eq!(b_rows.len(), k, "gemm_nn: B has {} rows, A has {k} columns", b_rows.len());
+    assert_eq!(
+        b_rows.len(),
+        k,
+        "gemm_nn: B has {} rows, A has {k} columns",
+        b_rows.len()
+    );
     if m == 0 || n == 0 {
         return;
     }
-    assert!(ldc >= n && c.len() >= (m - 1) * ldc + n, "gemm_nn: C too small");
+    assert!(
+        ldc >= n && c.len() >= (m - 1) * ldc + n,
+        "gemm_nn: C too small"
+    );
     let max_row = b_rows.iter().copied().max().unwrap_or(0);
-    assert!(k == 0 || max_row + n <= b.len(), "gemm_nn: B row out of bounds");
+    assert!(
+        k == 0 || max_row + n <= b.len(),
+        "gemm_nn: B row out of bounds"
+    );
     let level = simd_level();
     let (rows, cols) = grid(m, n, m * n * k, MR, 2 * NR);
     let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
-    let ctx = NnCtx { a, b, b_rows, max_row, accumulate, level };
+    let ctx = NnCtx {
+        a,
+        b,
+        b_rows,
+        max_row,
+        accumulate,
+        level,
+    };
     if blocks.len() == 1 {
         blocks.into_iter().for_each(|blk| ctx.block(blk));
     } else {
@@ -288,12 +331,22 @@ fn aligned_mut(v: &mut [f32]) -> &mut [f32] {
 
 /// Adds (or, on the first K block without `accumulate`, copies) `nv` columns of `mv` tile rows
 /// into the block's C rows `r0..` at column `js`.
-fn store_tile(rows: &mut [&mut [f32]], r0: usize, js: usize, mv: usize, nv: usize, tile: &[f32; MR * NR], first: bool) {
+fn store_tile(
+    rows: &mut [&mut [f32]],
+    r0: usize,
+    js: usize,
+    mv: usize,
+    nv: usize,
+    tile: &[f32; MR * NR],
+    first: bool,
+) {
     for r in 0..mv {
         let src = &tile[r * NR..r * NR + nv];
         if nv == NR {
             // Fixed-size copies compile to a few vector moves instead of a memcpy call.
-            let dst: &mut [f32; NR] = (&mut rows[r0 + r][js..js + NR]).try_into().expect("NR columns");
+            let dst: &mut [f32; NR] = (&mut rows[r0 + r][js..js + NR])
+                .try_into()
+                .expect("NR columns");
             let src: &[f32; NR] = src.try_into().expect("NR columns");
             if first {
                 *dst = *src;
@@ -328,10 +381,17 @@ impl NnCtx<'_> {
         }
         let nrows = blk.rows.len();
         debug_assert_eq!(blk.i0 % MR, 0);
-        let mut pack_store = vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK];
+        let mut pack_store =
+            vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK];
         let pack = aligned_mut(&mut pack_store);
-        let (mut t0, mut t1) = ([0.0f32; MR * NR], [0.0f32; MR * NR]);
-        let step = if self.level == SimdLevel::Avx512 { 2 } else { 1 };
+        // Strips per kernel call: AVX-512 has 32 registers, so it takes 2 strips (6 x 32 tile,
+        // 12 accumulators), or 4 when there are at most 3 rows (3 x 64, 12 accumulators).
+        let group = match self.level {
+            SimdLevel::Avx512 if nrows <= 3 => 4,
+            SimdLevel::Avx512 => 2,
+            _ => 1,
+        };
+        let mut tiles = [[0.0f32; MR * NR]; 4];
         for jc in (0..width).step_by(NC) {
             let ncw = NC.min(width - jc);
             let nstrips = ncw.div_ceil(NR);
@@ -342,25 +402,25 @@ impl NnCtx<'_> {
                 let first = k0 == 0 && !self.accumulate;
                 for ic in (0..nrows).step_by(MC) {
                     let mcw = MC.min(nrows - ic);
-                    for s in (0..nstrips).step_by(step) {
-                        let pair = step == 2 && s + 1 < nstrips;
-                        let bp = &pack[s * kc * NR..(s + 1) * kc * NR];
-                        let js = jc + s * NR;
-                        let nv = NR.min(ncw - s * NR);
+                    let mut s = 0;
+                    while s < nstrips {
+                        let g = if nstrips - s >= group { group } else { 1 };
+                        let bp = &pack[s * kc * NR..(s + g) * kc * NR];
                         for r0 in (ic..ic + mcw).step_by(MR) {
                             let mv = MR.min(ic + mcw - r0);
                             let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
-                            if pair {
-                                let bp1 = &pack[(s + 1) * kc * NR..(s + 2) * kc * NR];
-                                let nv1 = NR.min(ncw - (s + 1) * NR);
-                                self.kernel_pair(mv, kc, ap, bp, bp1, &mut t0, &mut t1);
-                                store_tile(&mut blk.rows, r0, js, mv, nv, &t0, first);
-                                store_tile(&mut blk.rows, r0, js + NR, mv, nv1, &t1, first);
+                            if g == 1 {
+                                self.kernel(mv, kc, ap, bp, &mut tiles[0]);
                             } else {
-                                self.kernel(mv, kc, ap, bp, &mut t0);
-                                store_tile(&mut blk.rows, r0, js, mv, nv, &t0, first);
+                                self.kernel_group(mv, g, kc, ap, bp, &mut tiles);
+                            }
+                            for (q, tile) in tiles.iter().enumerate().take(g) {
+                                let js = jc + (s + q) * NR;
+                                let nv = NR.min(ncw - (s + q) * NR);
+                                store_tile(&mut blk.rows, r0, js, mv, nv, tile, first);
                             }
                         }
+                        s += g;
                     }
                 }
             }
@@ -425,28 +485,33 @@ impl NnCtx<'_> {
         scalar_kernel_nn(mv, kc, a, b, out);
     }
 
-    /// Two MR x NR tiles from two packed B strips (AVX-512).
-    #[allow(clippy::too_many_arguments)]
-    fn kernel_pair(&self, mv: usize, kc: usize, a: &[f32], b0: &[f32], b1: &[f32], o0: &mut [f32; MR * NR], o1: &mut [f32; MR * NR]) {
-        assert!(a.len() >= kc * MR && b0.len() >= kc * NR && b1.len() >= kc * NR);
+    /// `g` (2 or 4) MR x NR tiles from `g` consecutive packed B strips (AVX-512; `b` holds the
+    /// `g` strips, `kc * NR` values each).
+    fn kernel_group(&self, mv: usize, g: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [[f32; MR * NR]; 4]) {
+        assert!(a.len() >= kc * MR && b.len() >= g * kc * NR && (g == 2 || (g == 4 && mv <= 3)));
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
             // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
-            // covers every read.
+            // covers every read (A `kc * MR`, B `g` strips of `kc * NR`).
             unsafe {
-                match mv {
-                    1 => avx512::kernel_nn2::<1>(kc, a, b0, b1, o0, o1),
-                    2 => avx512::kernel_nn2::<2>(kc, a, b0, b1, o0, o1),
-                    3 => avx512::kernel_nn2::<3>(kc, a, b0, b1, o0, o1),
-                    4 => avx512::kernel_nn2::<4>(kc, a, b0, b1, o0, o1),
-                    5 => avx512::kernel_nn2::<5>(kc, a, b0, b1, o0, o1),
-                    _ => avx512::kernel_nn2::<6>(kc, a, b0, b1, o0, o1),
+                match (mv, g) {
+                    (1, 4) => avx512::kernel_nn_group::<1, 4>(kc, a, b, out),
+                    (2, 4) => avx512::kernel_nn_group::<2, 4>(kc, a, b, out),
+                    (3, 4) => avx512::kernel_nn_group::<3, 4>(kc, a, b, out),
+                    (1, _) => avx512::kernel_nn_group::<1, 2>(kc, a, b, out),
+                    (2, _) => avx512::kernel_nn_group::<2, 2>(kc, a, b, out),
+                    (3, _) => avx512::kernel_nn_group::<3, 2>(kc, a, b, out),
+                    (4, _) => avx512::kernel_nn_group::<4, 2>(kc, a, b, out),
+                    (5, _) => avx512::kernel_nn_group::<5, 2>(kc, a, b, out),
+                    _ => avx512::kernel_nn_group::<6, 2>(kc, a, b, out),
                 }
             }
             return;
         }
-        self.kernel(mv, kc, a, b0, o0);
-        self.kernel(mv, kc, a, b1, o1);
+        let strip = kc * NR;
+        for (q, tile) in out.iter_mut().enumerate().take(g) {
+            self.kernel(mv, kc, a, &b[q * strip..(q + 1) * strip], tile);
+        }
     }
 }
 
@@ -473,18 +538,44 @@ fn scalar_kernel_nn(mv: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [f32; 
 ///
 /// Panics if a row is out of bounds (caller bug).
 #[allow(clippy::too_many_arguments)]
-pub fn gemm_nt(a: &[f32], a_rows: &[usize], b: &[f32], b_rows: &[usize], kk: usize, c: &mut [f32], ldc: usize, accumulate: bool) {
+pub fn gemm_nt(
+    a: &[f32],
+    a_rows: &[usize],
+    b: &[f32],
+    b_rows: &[usize],
+    kk: usize,
+    c: &mut [f32],
+    ldc: usize,
+    accumulate: bool,
+) {
     let (m, n) = (a_rows.len(), b_rows.len());
     if m == 0 || n == 0 {
         return;
     }
-    assert!(ldc >= n && c.len() >= (m - 1) * ldc + n, "gemm_nt: C too small");
-    assert!(a_rows.iter().all(|&r| r + kk <= a.len()), "gemm_nt: A row out of bounds");
-    assert!(b_rows.iter().all(|&r| r + kk <= b.len()), "gemm_nt: B row out of bounds");
+    assert!(
+        ldc >= n && c.len() >= (m - 1) * ldc + n,
+        "gemm_nt: C too small"
+    );
+    assert!(
+        a_rows.iter().all(|&r| r + kk <= a.len()),
+        "gemm_nt: A row out of bounds"
+    );
+    assert!(
+        b_rows.iter().all(|&r| r + kk <= b.len()),
+        "gemm_nt: B row out of bounds"
+    );
     let level = simd_level();
     let (rows, cols) = grid(m, n, m * n * kk, RT, CT * 4);
     let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
-    let ctx = NtCtx { a, a_rows, b, b_rows, k: kk, accumulate, level };
+    let ctx = NtCtx {
+        a,
+        a_rows,
+        b,
+        b_rows,
+        k: kk,
+        accumulate,
+        level,
+    };
     if blocks.len() == 1 {
         blocks.into_iter().for_each(|blk| ctx.block(blk));
     } else {
@@ -536,10 +627,21 @@ impl NtCtx<'_> {
     }
 
     /// `ao`/`bo` are row offsets plus the K-block start `k0`, with `k0 + kc <= self.k`.
-    fn kernel(&self, rv: usize, cv: usize, kc: usize, ao: &[usize], bo: &[usize], out: &mut [[f32; CT]; RT]) {
+    fn kernel(
+        &self,
+        rv: usize,
+        cv: usize,
+        kc: usize,
+        ao: &[usize],
+        bo: &[usize],
+        out: &mut [[f32; CT]; RT],
+    ) {
         // gemm_nt checked `row + k <= len` for every row; offsets are `row + k0` with
         // `k0 + kc <= k`, so every read below is in bounds.
-        debug_assert!(ao.iter().all(|&o| o + kc <= self.a.len()) && bo.iter().all(|&o| o + kc <= self.b.len()));
+        debug_assert!(
+            ao.iter().all(|&o| o + kc <= self.a.len())
+                && bo.iter().all(|&o| o + kc <= self.b.len())
+        );
         assert!(ao.len() == rv && bo.len() == cv && kc <= self.k);
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
@@ -595,7 +697,14 @@ impl NtCtx<'_> {
 
 /// Portable micro-kernel of [`gemm_nt`]: eight partial sums per dot product, added pairwise,
 /// in the same order as the SIMD kernel.
-fn scalar_kernel_nt(kc: usize, a: &[f32], ao: &[usize], b: &[f32], bo: &[usize], out: &mut [[f32; CT]; RT]) {
+fn scalar_kernel_nt(
+    kc: usize,
+    a: &[f32],
+    ao: &[usize],
+    b: &[f32],
+    bo: &[usize],
+    out: &mut [[f32; CT]; RT],
+) {
     for (r, &oa) in ao.iter().enumerate() {
         let ar = &a[oa..oa + kc];
         for (c, &ob) in bo.iter().enumerate() {
@@ -651,7 +760,12 @@ mod avx2 {
     /// # Safety
     /// The CPU must support AVX2 and FMA; `a.len() >= kc * MR` and `b.len() >= kc * NR`.
     #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn kernel_nn<const R: usize>(kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
+    pub unsafe fn kernel_nn<const R: usize>(
+        kc: usize,
+        a: &[f32],
+        b: &[f32],
+        out: &mut [f32; MR * NR],
+    ) {
         let mut acc = [[_mm256_setzero_ps(); 2]; R];
         let mut ap = a.as_ptr();
         let mut bp = b.as_ptr();
@@ -701,15 +815,16 @@ mod avx2 {
         let k8 = kc / 8 * 8;
         let mut k = 0;
         while k < k8 {
-            // SAFETY: `k + 8 <= kc`, and every row has `kc` readable values by the contract.
-            let mut av = [_mm256_setzero_ps(); R];
-            for r in 0..R {
-                av[r] = _mm256_loadu_ps(pa[r].add(k));
-            }
+            // B vectors in registers, A one row at a time: 12 accumulators + 3 + 1 = 16 ymm,
+            // no spills.
+            let mut bv = [_mm256_setzero_ps(); C];
             for c in 0..C {
-                let bv = _mm256_loadu_ps(pb[c].add(k));
-                for r in 0..R {
-                    acc[r][c] = _mm256_fmadd_ps(av[r], bv, acc[r][c]);
+                bv[c] = _mm256_loadu_ps(pb[c].add(k));
+            }
+            for r in 0..R {
+                let av = _mm256_loadu_ps(pa[r].add(k));
+                for c in 0..C {
+                    acc[r][c] = _mm256_fmadd_ps(av, bv[c], acc[r][c]);
                 }
             }
             k += 8;
@@ -749,39 +864,47 @@ mod avx512 {
         for (kk, &r) in rows.iter().enumerate() {
             let src = b.as_ptr().add(r + j);
             for s in 0..full {
-                _mm512_storeu_ps(dst.add((s * kc + kk) * NR), _mm512_loadu_ps(src.add(s * NR)));
+                _mm512_storeu_ps(
+                    dst.add((s * kc + kk) * NR),
+                    _mm512_loadu_ps(src.add(s * NR)),
+                );
             }
         }
     }
 
-    /// Two tiles: `o0[r][..] = sum_k a[k * MR + r] * b0[k * NR..][..NR]`, `o1` likewise from
-    /// `b1`, for `r < R`.
+    /// `G` tiles: `out[q][r][..] = sum_k a[k * MR + r] * b[q * kc * NR + k * NR..][..NR]` for
+    /// `r < R`, `q < G`.
     ///
     /// # Safety
-    /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `b0.len() >= kc * NR` and
-    /// `b1.len() >= kc * NR`.
+    /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `b.len() >= G * kc * NR`, `G <= 4`.
     #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel_nn2<const R: usize>(kc: usize, a: &[f32], b0: &[f32], b1: &[f32], o0: &mut [f32; MR * NR], o1: &mut [f32; MR * NR]) {
-        let mut acc = [[_mm512_setzero_ps(); 2]; R];
+    pub unsafe fn kernel_nn_group<const R: usize, const G: usize>(kc: usize, a: &[f32], b: &[f32], out: &mut [[f32; MR * NR]; 4]) {
+        let mut acc = [[_mm512_setzero_ps(); G]; R];
         let mut ap = a.as_ptr();
-        let (mut p0, mut p1) = (b0.as_ptr(), b1.as_ptr());
+        let mut bp = [b.as_ptr(); G];
+        for (q, p) in bp.iter_mut().enumerate() {
+            *p = b.as_ptr().add(q * kc * NR);
+        }
         for _ in 0..kc {
             // SAFETY: `kc` steps of NR values from each strip and MR from A are in bounds.
-            let v0 = _mm512_loadu_ps(p0);
-            let v1 = _mm512_loadu_ps(p1);
+            let mut v = [_mm512_setzero_ps(); G];
+            for q in 0..G {
+                v[q] = _mm512_loadu_ps(bp[q]);
+                bp[q] = bp[q].add(NR);
+            }
             for (r, acc) in acc.iter_mut().enumerate() {
                 let av = _mm512_set1_ps(*ap.add(r));
-                acc[0] = _mm512_fmadd_ps(av, v0, acc[0]);
-                acc[1] = _mm512_fmadd_ps(av, v1, acc[1]);
+                for q in 0..G {
+                    acc[q] = _mm512_fmadd_ps(av, v[q], acc[q]);
+                }
             }
             ap = ap.add(MR);
-            p0 = p0.add(NR);
-            p1 = p1.add(NR);
         }
         for (r, acc) in acc.iter().enumerate() {
-            // SAFETY: `r < R <= MR`; each store writes NR values of row r of a tile.
-            _mm512_storeu_ps(o0.as_mut_ptr().add(r * NR), acc[0]);
-            _mm512_storeu_ps(o1.as_mut_ptr().add(r * NR), acc[1]);
+            for q in 0..G {
+                // SAFETY: `r < R <= MR` and `q < G <= 4`: row r of tile q.
+                _mm512_storeu_ps(out[q].as_mut_ptr().add(r * NR), acc[q]);
+            }
         }
     }
 

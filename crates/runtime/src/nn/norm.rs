@@ -50,9 +50,16 @@ pub fn instance_norm_stats(x: &Tensor) -> NormStats {
     let st: Vec<(f32, f32)> = if n == 0 {
         vec![plane_stats(&[]); x.c]
     } else {
-        x.data.par_chunks(n).with_min_len(par_min_items(n)).map(plane_stats).collect()
+        x.data
+            .par_chunks(n)
+            .with_min_len(par_min_items(n))
+            .map(plane_stats)
+            .collect()
     };
-    NormStats { mean: st.iter().map(|s| s.0).collect(), rstd: st.iter().map(|s| s.1).collect() }
+    NormStats {
+        mean: st.iter().map(|s| s.0).collect(),
+        rstd: st.iter().map(|s| s.1).collect(),
+    }
 }
 
 /// `x = (x - mean) * rstd` per channel with given statistics.
@@ -60,10 +67,14 @@ pub fn normalize(x: &mut Tensor, st: &NormStats) {
     let n = x.plane_len();
     assert_eq!(st.mean.len(), x.c, "normalize: statistics per channel");
     if n > 0 {
-        x.data.par_chunks_mut(n).with_min_len(par_min_items(n)).enumerate().for_each(|(c, p)| {
-            let (m, r) = (st.mean[c], st.rstd[c]);
-            p.iter_mut().for_each(|v| *v = (*v - m) * r);
-        });
+        x.data
+            .par_chunks_mut(n)
+            .with_min_len(par_min_items(n))
+            .enumerate()
+            .for_each(|(c, p)| {
+                let (m, r) = (st.mean[c], st.rstd[c]);
+                p.iter_mut().for_each(|v| *v = (*v - m) * r);
+            });
     }
 }
 

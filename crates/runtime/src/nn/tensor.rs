@@ -27,13 +27,23 @@ pub struct Tensor {
 impl Tensor {
     /// A tensor of zeros.
     pub fn zeros(c: usize, h: usize, w: usize) -> Self {
-        Tensor { c, h, w, data: pool::zeroed(c * h * w) }
+        Tensor {
+            c,
+            h,
+            w,
+            data: pool::zeroed(c * h * w),
+        }
     }
 
     /// A tensor whose every value the caller overwrites before reading (storage from
     /// [`pool::scratch`]).
     pub fn scratch(c: usize, h: usize, w: usize) -> Self {
-        Tensor { c, h, w, data: pool::scratch(c * h * w) }
+        Tensor {
+            c,
+            h,
+            w,
+            data: pool::scratch(c * h * w),
+        }
     }
 
     /// Hands the storage back to [`pool`].
@@ -87,7 +97,12 @@ impl Tensor {
         let mut data = Vec::with_capacity(self.data.len() + other.data.len());
         data.extend_from_slice(&self.data);
         data.extend_from_slice(&other.data);
-        Ok(Tensor { c: self.c + other.c, h: self.h, w: self.w, data })
+        Ok(Tensor {
+            c: self.c + other.c,
+            h: self.h,
+            w: self.w,
+            data,
+        })
     }
 
     /// The tensor grown to `h2 x w2` with zeros at the bottom and right (`h2 >= h`, `w2 >= w`).
@@ -143,7 +158,12 @@ pub mod pool {
         }
         let mut pool = POOL.lock().unwrap_or_else(|e| e.into_inner());
         // Best fit: the smallest kept buffer that is large enough.
-        let best = pool.iter().enumerate().filter(|(_, v)| v.capacity() >= len).min_by_key(|(_, v)| v.capacity()).map(|(i, _)| i)?;
+        let best = pool
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| v.capacity() >= len)
+            .min_by_key(|(_, v)| v.capacity())
+            .map(|(i, _)| i)?;
         Some(pool.swap_remove(best))
     }
 

@@ -27,7 +27,10 @@ pub fn upsample_nearest2(x: &Tensor) -> Tensor {
 /// size), without building the concatenation.
 pub fn upsample_nearest2_concat(parts: &[&Tensor], act: Act) -> Tensor {
     let (h, w) = (parts[0].h, parts[0].w);
-    assert!(parts.iter().all(|p| p.h == h && p.w == w), "upsample concat size");
+    assert!(
+        parts.iter().all(|p| p.h == h && p.w == w),
+        "upsample concat size"
+    );
     let c: usize = parts.iter().map(|p| p.c).sum();
     let mut out = Tensor::zeros(c, 2 * h, 2 * w);
     let mut ch = 0;

@@ -58,7 +58,7 @@ pub enum RendererError {
     #[error(transparent)]
     Format(#[from] dnr_format::Error),
     /// The core glTF scene could not be turned into triangles.
-    #[error("scene: {0}")]
+    #[error(transparent)]
     Scene(#[from] SceneError),
     /// A neural texture is malformed.
     #[error("neural texture {index}: {reason}")]
@@ -69,12 +69,12 @@ pub enum RendererError {
         reason: String,
     },
     /// A renderer's network cannot be built.
-    #[error("renderer {index}: {source}")]
+    #[error("renderer {index}: {error}")]
     Network {
         /// Index in the extension's `renderers`.
         index: usize,
         /// What is wrong.
-        source: NetworkError,
+        error: NetworkError,
     },
     /// A material's extension object names a missing texture or renderer, or pairs a
     /// texture and a renderer whose channel counts differ.
@@ -98,12 +98,12 @@ pub enum RendererError {
     #[error("G-buffer: {0}")]
     GBuffer(String),
     /// A network rejected its input while drawing (an internal inconsistency).
-    #[error("renderer {index} failed: {source}")]
+    #[error("renderer {index} failed: {error}")]
     Run {
         /// Index in the extension's `renderers`.
         index: usize,
         /// The layer error.
-        source: NnError,
+        error: NnError,
     },
 }
 
@@ -192,7 +192,7 @@ impl Renderer {
             .enumerate()
             .map(|(index, r)| {
                 let net = Net::from_decoded(r)
-                    .map_err(|source| RendererError::Network { index, source })?;
+                    .map_err(|error| RendererError::Network { index, error })?;
                 Ok(RendererSlot {
                     net,
                     input_channels: r.spec.input_channels as usize,

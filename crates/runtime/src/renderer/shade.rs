@@ -41,7 +41,7 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
             continue; // a renderer that covers no pixel is not evaluated
         }
         let id = ri as u32;
-        let run_err = |source| RendererError::Run { index: ri, source };
+        let run_err = |error| RendererError::Run { index: ri, error };
         match &slot.net {
             Net::None => {
                 image.data.par_chunks_mut(4).enumerate().for_each_init(

@@ -43,7 +43,15 @@ pub fn assert_close(got: &[f32], want: &[f64], rtol: f64, what: &str) {
 
 /// Naive convolution, OIHW weights, f64 accumulation.
 #[allow(clippy::too_many_arguments)]
-pub fn conv_ref(x: &Tensor, w: &[f32], b: Option<&[f32]>, co: usize, k: usize, s: usize, p: usize) -> (usize, usize, Vec<f64>) {
+pub fn conv_ref(
+    x: &Tensor,
+    w: &[f32],
+    b: Option<&[f32]>,
+    co: usize,
+    k: usize,
+    s: usize,
+    p: usize,
+) -> (usize, usize, Vec<f64>) {
     let ho = (x.h + 2 * p - k) / s + 1;
     let wo = (x.w + 2 * p - k) / s + 1;
     let mut out = vec![0.0f64; co * ho * wo];
@@ -93,7 +101,8 @@ pub fn tconv_ref(x: &Tensor, w: &[f32], b: Option<&[f32]>, co: usize) -> Vec<f64
                             if oy < 0 || ox < 0 || oy >= ho as isize || ox >= wo as isize {
                                 continue;
                             }
-                            out[(o * ho + oy as usize) * wo + ox as usize] += v * w[((c * co + o) * 4 + ky) * 4 + kx] as f64;
+                            out[(o * ho + oy as usize) * wo + ox as usize] +=
+                                v * w[((c * co + o) * 4 + ky) * 4 + kx] as f64;
                         }
                     }
                 }
@@ -111,7 +120,17 @@ pub fn f64s(v: &[f32]) -> Vec<f64> {
 /// gemm_nn against a naive product over odd shapes.
 pub fn check_gemm_nn(seed: u64) {
     let mut r = rng(seed);
-    for &(m, n, k) in &[(1, 1, 1), (5, 17, 3), (6, 16, 7), (7, 33, 257), (13, 100, 300), (3, 1000, 64), (40, 301, 129), (70, 301, 300), (131, 47, 513)] {
+    for &(m, n, k) in &[
+        (1, 1, 1),
+        (5, 17, 3),
+        (6, 16, 7),
+        (7, 33, 257),
+        (13, 100, 300),
+        (3, 1000, 64),
+        (40, 301, 129),
+        (70, 301, 300),
+        (131, 47, 513),
+    ] {
         // B rows at scattered offsets (with gaps) into one buffer.
         let pitch = n + 5;
         let b = randv(&mut r, k * pitch + 11);
@@ -121,12 +140,24 @@ pub fn check_gemm_nn(seed: u64) {
         for accumulate in [false, true] {
             let c0 = randv(&mut r, m * ldc);
             let mut c = c0.clone();
-            gemm_nn(&PackedA::new(m, k, &a, k, 1), &b, &rows, n, &mut c, ldc, accumulate);
+            gemm_nn(
+                &PackedA::new(m, k, &a, k, 1),
+                &b,
+                &rows,
+                n,
+                &mut c,
+                ldc,
+                accumulate,
+            );
             let mut want = Vec::new();
             let mut got = Vec::new();
             for i in 0..m {
                 for j in 0..n {
-                    let mut s = if accumulate { c0[i * ldc + j] as f64 } else { 0.0 };
+                    let mut s = if accumulate {
+                        c0[i * ldc + j] as f64
+                    } else {
+                        0.0
+                    };
                     for kk in 0..k {
                         s += a[i * k + kk] as f64 * b[rows[kk] + j] as f64;
                     }
@@ -134,9 +165,17 @@ pub fn check_gemm_nn(seed: u64) {
                     got.push(c[i * ldc + j]);
                 }
                 // Padding columns untouched.
-                assert_eq!(&c[i * ldc + n..i * ldc + ldc], &c0[i * ldc + n..i * ldc + ldc]);
+                assert_eq!(
+                    &c[i * ldc + n..i * ldc + ldc],
+                    &c0[i * ldc + n..i * ldc + ldc]
+                );
             }
-            assert_close(&got, &want, RTOL, &format!("gemm_nn {m}x{n}x{k} acc={accumulate}"));
+            assert_close(
+                &got,
+                &want,
+                RTOL,
+                &format!("gemm_nn {m}x{n}x{k} acc={accumulate}"),
+            );
         }
     }
 }
@@ -144,7 +183,14 @@ pub fn check_gemm_nn(seed: u64) {
 /// gemm_nt against a naive product over odd shapes.
 pub fn check_gemm_nt(seed: u64) {
     let mut r = rng(seed);
-    for &(m, n, k) in &[(1, 1, 1), (5, 7, 3), (4, 3, 8), (7, 11, 517), (13, 29, 1031), (2, 300, 2000)] {
+    for &(m, n, k) in &[
+        (1, 1, 1),
+        (5, 7, 3),
+        (4, 3, 8),
+        (7, 11, 517),
+        (13, 29, 1031),
+        (2, 300, 2000),
+    ] {
         let a = randv(&mut r, m * k + 9);
         let b = randv(&mut r, n * k + 4);
         let a_rows: Vec<usize> = (0..m).map(|i| ((i * 5) % m) * k + (i % 9).min(9)).collect();
@@ -156,42 +202,80 @@ pub fn check_gemm_nt(seed: u64) {
             let mut want = Vec::new();
             for i in 0..m {
                 for j in 0..n {
-                    let mut s = if accumulate { c0[i * n + j] as f64 } else { 0.0 };
+                    let mut s = if accumulate {
+                        c0[i * n + j] as f64
+                    } else {
+                        0.0
+                    };
                     for kk in 0..k {
                         s += a[a_rows[i] + kk] as f64 * b[b_rows[j] + kk] as f64;
                     }
                     want.push(s);
                 }
             }
-            assert_close(&c, &want, RTOL, &format!("gemm_nt {m}x{n}x{k} acc={accumulate}"));
+            assert_close(
+                &c,
+                &want,
+                RTOL,
+                &format!("gemm_nt {m}x{n}x{k} acc={accumulate}"),
+            );
         }
     }
 }
 
 /// conv2d against `conv_ref`.
 #[allow(clippy::too_many_arguments)]
-pub fn check_conv(r: &mut rand_chacha::ChaCha8Rng, ci: usize, co: usize, h: usize, w: usize, k: usize, s: usize, p: usize) {
+pub fn check_conv(
+    r: &mut rand_chacha::ChaCha8Rng,
+    ci: usize,
+    co: usize,
+    h: usize,
+    w: usize,
+    k: usize,
+    s: usize,
+    p: usize,
+) {
     let x = randt(r, ci, h, w);
     let wt = randv(r, co * ci * k * k);
     let b = randv(r, co);
-    let geom = ConvGeom { c_in: ci, c_out: co, k, stride: s, pad: p };
+    let geom = ConvGeom {
+        c_in: ci,
+        c_out: co,
+        k,
+        stride: s,
+        pad: p,
+    };
     let y = conv2d(&x, &wt, Some(&b), geom).unwrap();
     let (ho, wo, want) = conv_ref(&x, &wt, Some(&b), co, k, s, p);
     assert_eq!((y.c, y.h, y.w), (co, ho, wo), "conv shape");
-    assert_close(&y.data, &want, RTOL, &format!("conv {ci}->{co} {h}x{w} k{k} s{s} p{p}"));
+    assert_close(
+        &y.data,
+        &want,
+        RTOL,
+        &format!("conv {ci}->{co} {h}x{w} k{k} s{s} p{p}"),
+    );
 }
-
 
 /// Transposed conv against `tconv_ref` over odd shapes.
 pub fn check_tconv(seed: u64) {
     let mut r = rng(seed);
-    for &(ci, co, h, w) in &[(1, 1, 1, 1), (3, 5, 2, 3), (2, 7, 5, 7), (13, 3, 11, 2), (32, 16, 32, 32)] {
+    for &(ci, co, h, w) in &[
+        (1, 1, 1, 1),
+        (3, 5, 2, 3),
+        (2, 7, 5, 7),
+        (13, 3, 11, 2),
+        (32, 16, 32, 32),
+    ] {
         let x = randt(&mut r, ci, h, w);
         let wt = randv(&mut r, ci * co * 16);
         let b = randv(&mut r, co);
         let y = conv_transpose4s2(&x, &wt, Some(&b), co).unwrap();
         assert_eq!((y.c, y.h, y.w), (co, 2 * h, 2 * w));
-        assert_close(&y.data, &tconv_ref(&x, &wt, Some(&b), co), RTOL, &format!("tconv {ci}->{co} {h}x{w}"));
+        assert_close(
+            &y.data,
+            &tconv_ref(&x, &wt, Some(&b), co),
+            RTOL,
+            &format!("tconv {ci}->{co} {h}x{w}"),
+        );
     }
 }
-
