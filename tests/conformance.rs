@@ -153,6 +153,43 @@ fn valid_samples_are_clean_and_round_trip() {
                 assert!(l.data.iter().all(|v| v.is_finite()));
             }
         }
+        // Bindings live on mesh primitives; fallback materials carry only KHR_materials_unlit
+        // (with anything else beside it glTF-Validator warns MULTIPLE_EXTENSIONS).
+        let root = &asset.container.root;
+        for (i, m) in root.materials.iter().enumerate() {
+            let ext = m.extensions.as_ref().unwrap();
+            assert!(
+                ext.unlit.is_some() && ext.others.is_empty(),
+                "{file}: material {i}"
+            );
+            assert!(m.pbr_metallic_roughness.base_color_texture.is_some());
+        }
+        assert_eq!(asset.primitives.len(), root.meshes.len(), "{file}");
+        let mut bound = 0;
+        for (mi, mesh) in root.meshes.iter().enumerate() {
+            assert_eq!(asset.primitives[mi].len(), mesh.primitives.len(), "{file}");
+            for (pi, p) in mesh.primitives.iter().enumerate() {
+                let json = dnr_format::asset::primitive_extension_value(p);
+                let b = asset.binding(mi, pi);
+                assert_eq!(
+                    json.is_some(),
+                    b.is_some(),
+                    "{file}: mesh {mi} primitive {pi}"
+                );
+                if let (Some(json), Some(b)) = (json, b) {
+                    bound += 1;
+                    assert_eq!(json["neuralTexture"], b.neural_texture, "{file}");
+                    assert_eq!(json["renderer"], b.renderer, "{file}");
+                    assert!((b.neural_texture as usize) < asset.textures.len());
+                    assert!((b.renderer as usize) < asset.renderers.len());
+                    assert!(
+                        p.material.is_some(),
+                        "{file}: bound primitive without fallback"
+                    );
+                }
+            }
+        }
+        assert!(bound > 0, "{file}: no primitive is bound");
         for r in &asset.renderers {
             let required = dnr_format::architecture_tensors(&r.spec).unwrap();
             assert_eq!(r.tensors.len(), required.len(), "{file}");
@@ -293,6 +330,26 @@ fn cli_inspect_reports_every_part() {
         .unwrap()
         .contains("degree 3"));
     assert_eq!(v["renderers"][1]["architecture"], "mlp");
+    // Mesh 0 (two quads: none, then mlp) and mesh 1 (pyramid: mlp), each with its fallback.
+    let bindings: Vec<_> = v["bindings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| {
+            let n = |k: &str| b[k].as_u64().unwrap();
+            (
+                n("mesh"),
+                n("primitive"),
+                n("neural_texture"),
+                n("renderer"),
+                n("material"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        bindings,
+        [(0, 0, 0, 0, 0), (0, 1, 1, 1, 1), (1, 0, 1, 1, 1)]
+    );
     // mlp 19 -> [6] -> 4: 19*6 + 6 + 6*4 + 4 parameters.
     assert_eq!(v["renderers"][1]["parameter_count"], 19 * 6 + 6 + 6 * 4 + 4);
     let b = &v["bytes"];
@@ -306,5 +363,10 @@ fn cli_inspect_reports_every_part() {
         .output()
         .unwrap();
     assert!(text.status.success());
-    assert!(String::from_utf8_lossy(&text.stdout).contains("level 1"));
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("level 1"));
+    assert!(
+        text.contains("mesh 1 primitive 0: neural texture 1, renderer 1"),
+        "{text}"
+    );
 }

@@ -325,8 +325,9 @@ def minimal_texture_levels() -> list[dict]:
 
 
 def build_minimal() -> dict:
-    """A complete .gltf: one textured quad whose material uses the extension with an mlp renderer
-    and an unlit PNG fallback; all binary data is embedded as a data URI."""
+    """A complete .gltf: one textured quad bound (on its mesh primitive) to a neural texture and
+    an mlp renderer, with an unlit PNG fallback material; all binary data is embedded as a
+    data URI."""
     levels = minimal_texture_levels()
     channels = levels[0]["channels"]
     wrap_mode = CLAMP_TO_EDGE
@@ -392,13 +393,17 @@ def build_minimal() -> dict:
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": "quad"}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1},
-                                    "indices": 2, "material": 0, "mode": 4}]}],
+        "meshes": [{"primitives": [{
+            "attributes": {"POSITION": 0, "TEXCOORD_0": 1},
+            "indices": 2, "material": 0, "mode": 4,
+            "extensions": {EXT: {"neuralTexture": 0, "renderer": 0, "texCoord": 0}},
+        }]}],
         "materials": [{
-            "name": "neural quad",
+            "name": "quad fallback",
             "pbrMetallicRoughness": {"baseColorTexture": {"index": 0, "texCoord": 0},
                                      "metallicFactor": 0.0, "roughnessFactor": 0.9},
-            "extensions": {UNLIT: {}, EXT: {"neuralTexture": 0, "renderer": 0, "texCoord": 0}},
+            "doubleSided": True,
+            "extensions": {UNLIT: {}},
         }],
         "textures": [{"source": 0, "sampler": 0}],
         "images": [{"bufferView": 5, "mimeType": "image/png"}],
@@ -506,17 +511,52 @@ def view_bytes(gltf: dict, vi: int) -> bytes | None:
     return data[start:start + length]
 
 
+def bound_primitives(gltf: dict) -> list[dict]:
+    """The mesh primitives that carry the extension's binding object."""
+    return [p for mesh in gltf.get("meshes", []) for p in mesh.get("primitives", [])
+            if EXT in p.get("extensions", {})]
+
+
+def check_primitives(gltf: dict, textures: list | None, renderers: list | None) -> list[str]:
+    """README, Extending Mesh Primitives: fallback material, TEXCOORD_n, and (when the root
+    object is there) the indices and the pairing."""
+    codes = []
+    materials = gltf.get("materials", [])
+    for prim in bound_primitives(gltf):
+        ext = prim["extensions"][EXT]
+        mi = prim.get("material")
+        if mi is None:
+            codes.append("FALLBACK_MISSING")
+        elif 0 <= mi < len(materials):
+            m = materials[mi]
+            if ("baseColorTexture" not in m.get("pbrMetallicRoughness", {})
+                    or UNLIT not in m.get("extensions", {})):
+                codes.append("FALLBACK_MISSING")
+        if f"TEXCOORD_{ext.get('texCoord', 0)}" not in prim["attributes"]:
+            codes.append("TEXCOORD_MISSING")
+        if textures is None:
+            continue
+        ti, ri = ext["neuralTexture"], ext["renderer"]
+        if not 0 <= ti < len(textures) or not 0 <= ri < len(renderers):
+            codes.append("INDEX_OUT_OF_RANGE")
+            continue
+        if textures[ti]["channels"] != renderers[ri]["inputChannels"]:
+            codes.append("RENDERER_INPUT_MISMATCH")
+    return codes
+
+
 def validate(gltf: dict) -> list[str]:
     """Returns the codes found (order of discovery). Schema checks are done separately."""
     codes = []
     root = gltf.get("extensions", {}).get(EXT)
-    mats = [m for m in gltf.get("materials", []) if EXT in m.get("extensions", {})]
-    if (root is not None or mats) and EXT not in gltf.get("extensionsUsed", []):
+    bound = bound_primitives(gltf)
+    if (root is not None or bound) and EXT not in gltf.get("extensionsUsed", []):
         codes.append("EXTENSION_NOT_USED")
     if EXT in gltf.get("extensionsRequired", []):
         codes.append("EXTENSION_REQUIRED")
     if root is None:
-        return codes + (["JSON_SCHEMA"] if mats else [])
+        # The bindings' indices name nothing; the checks that do not need the root apply.
+        return codes + (["JSON_SCHEMA"] + check_primitives(gltf, None, None) if bound else [])
     if root["version"] != 1:
         return codes + ["VERSION_UNSUPPORTED"]
     textures, renderers = root["neuralTextures"], root["renderers"]
@@ -624,25 +664,7 @@ def validate(gltf: dict) -> list[str]:
         if want is not None and set(want) - seen:
             codes.append("WEIGHTS_MISSING")
 
-    for mi, m in enumerate(gltf.get("materials", [])):
-        ext = m.get("extensions", {}).get(EXT)
-        if ext is None:
-            continue
-        if ("baseColorTexture" not in m.get("pbrMetallicRoughness", {})
-                or UNLIT not in m.get("extensions", {})):
-            codes.append("FALLBACK_MISSING")
-        ti, ri = ext["neuralTexture"], ext["renderer"]
-        if not 0 <= ti < len(textures) or not 0 <= ri < len(renderers):
-            codes.append("INDEX_OUT_OF_RANGE")
-            continue
-        if textures[ti]["channels"] != renderers[ri]["inputChannels"]:
-            codes.append("RENDERER_INPUT_MISMATCH")
-        attr = f"TEXCOORD_{ext.get('texCoord', 0)}"
-        for mesh in gltf.get("meshes", []):
-            for prim in mesh["primitives"]:
-                if prim.get("material") == mi and attr not in prim["attributes"]:
-                    codes.append("TEXCOORD_MISSING")
-    return codes
+    return codes + check_primitives(gltf, textures, renderers)
 
 
 def _set_view_byte(g: dict, vi: int, at: int, value: int) -> None:
@@ -675,6 +697,11 @@ def mutations(base: dict):
     root = lambda g: g["extensions"][EXT]  # noqa: E731
     rend = lambda g: root(g)["renderers"][0]  # noqa: E731
     tex = lambda g: root(g)["neuralTextures"][0]  # noqa: E731
+    prim = lambda g: g["meshes"][0]["primitives"][0]  # noqa: E731
+    binding = lambda g: prim(g)["extensions"][EXT]  # noqa: E731
+
+    def binding_on_material(g):
+        g["materials"][0]["extensions"][EXT] = prim(g).pop("extensions")[EXT]
     lv = tex(base)["levels"][0]
     nan_exr = exr_write(lv["width"], lv["height"], 8, [float("nan")] + [0.0] * (4 * 4 * 8 - 1))
     exr9 = exr_write(lv["width"], lv["height"], 9, [0.0] * (4 * 4 * 9))
@@ -688,7 +715,15 @@ def mutations(base: dict):
         ("version 2", m(lambda g: root(g).update(version=2)), ["VERSION_UNSUPPORTED"]),
         ("no unlit fallback", m(lambda g: g["materials"][0]["extensions"].pop(UNLIT)),
          ["FALLBACK_MISSING"]),
-        ("renderer index 5", m(lambda g: g["materials"][0]["extensions"][EXT].update(renderer=5)),
+        ("no fallback baseColorTexture",
+         m(lambda g: g["materials"][0]["pbrMetallicRoughness"].pop("baseColorTexture")),
+         ["FALLBACK_MISSING"]),
+        ("no fallback material", m(lambda g: prim(g).pop("material")), ["FALLBACK_MISSING"]),
+        ("binding on the material instead of the primitive (binds nothing)",
+         m(binding_on_material), []),
+        ("renderer index 5", m(lambda g: binding(g).update(renderer=5)),
+         ["INDEX_OUT_OF_RANGE"]),
+        ("neuralTexture index 1", m(lambda g: binding(g).update(neuralTexture=1)),
          ["INDEX_OUT_OF_RANGE"]),
         ("inputChannels 9", m(lambda g: rend(g).update(inputChannels=9)),
          ["WEIGHTS_SHAPE_MISMATCH", "RENDERER_INPUT_MISMATCH"]),
@@ -715,6 +750,9 @@ def mutations(base: dict):
         ("basis wavelets", m(lambda g: tex(g)["viewDependence"].update(basis="wavelets")),
          ["SH_DEGREE_UNSUPPORTED"]),
         ("no root object", m(lambda g: g.pop("extensions")), ["JSON_SCHEMA"]),
+        ("no root object, binding on TEXCOORD_1",
+         m(lambda g: (g.pop("extensions"), binding(g).update(texCoord=1))),
+         ["JSON_SCHEMA", "TEXCOORD_MISSING"]),
         ("mlp without hidden", m(lambda g: rend(g).pop("hidden")), ["RENDERER_PARAMETER_INVALID"]),
         ("mlp without weights", m(lambda g: rend(g).pop("weights")), ["WEIGHTS_MISSING"]),
         ("2 channels", m(lambda g: (tex(g).update(channels=2), rend(g).update(inputChannels=2))),
@@ -730,8 +768,7 @@ def mutations(base: dict):
                                        rend(g)["weights"][2].update(crc32=zlib.crc32(
                                            view_bytes(g, 6)[144:144 + 128])))),
          ["WEIGHTS_NON_FINITE"]),
-        ("TEXCOORD_1", m(lambda g: g["materials"][0]["extensions"][EXT].update(texCoord=1)),
-         ["TEXCOORD_MISSING"]),
+        ("TEXCOORD_1", m(lambda g: binding(g).update(texCoord=1)), ["TEXCOORD_MISSING"]),
     ]
 
 
@@ -808,11 +845,14 @@ POSITIVE_RENDERERS = [
                                   "hidden": [], "weights": []}),
 ]
 
+PRIMITIVE_SCHEMA = "mesh.primitive.EXT_deferred_neural_rendering.schema.json"
+
 NEGATIVE_OTHER = [
     ("root.EXT without version", "glTF.EXT_deferred_neural_rendering.schema.json",
      {"neuralTextures": [], "renderers": []}),
-    ("material without renderer", "material.EXT_deferred_neural_rendering.schema.json",
-     {"neuralTexture": 0}),
+    ("primitive binding without renderer", PRIMITIVE_SCHEMA, {"neuralTexture": 0}),
+    ("primitive binding with a negative texCoord", PRIMITIVE_SCHEMA,
+     {"neuralTexture": 0, "renderer": 0, "texCoord": -1}),
     ("texture with 2 channels", "neuralTexture.schema.json",
      {"channels": 2, "levels": [{"width": 1, "height": 1, "bufferView": 0,
                                  "mimeType": "image/x-exr"}]}),
@@ -821,8 +861,7 @@ NEGATIVE_OTHER = [
      {"width": 1, "height": 1, "bufferView": 0, "mimeType": "image/png"}),
     ("SH degree 4", "viewDependence.schema.json",
      {"basis": "sphericalHarmonics", "degree": 4, "firstChannel": 0}),
-    ("negative index", "material.EXT_deferred_neural_rendering.schema.json",
-     {"neuralTexture": -1, "renderer": 0}),
+    ("negative index", PRIMITIVE_SCHEMA, {"neuralTexture": -1, "renderer": 0}),
 ]
 
 
@@ -873,7 +912,7 @@ def main(argv: list[str]) -> int:
         return 1
     res.check(len(schemas) == 7, "seven schema files", str(sorted(schemas)))
     root_v = v["glTF.EXT_deferred_neural_rendering.schema.json"]
-    mat_v = v["material.EXT_deferred_neural_rendering.schema.json"]
+    prim_v = v[PRIMITIVE_SCHEMA]
     rend_v = v["renderer.schema.json"]
 
     # 1. Examples on disk equal the builders' output.
@@ -885,9 +924,15 @@ def main(argv: list[str]) -> int:
     # 2. Every example validates against its schema.
     minimal = json.loads((EXAMPLES / "minimal.gltf").read_text())
     res.check(not (e := _errors(root_v, minimal["extensions"][EXT])), "minimal root object", str(e))
+    bound = bound_primitives(minimal)
+    res.check(len(bound) == 1, "minimal.gltf binds its primitive")
+    for i, p in enumerate(bound):
+        res.check(not (e := _errors(prim_v, p["extensions"][EXT])), f"minimal binding {i}", str(e))
+    # The fallback material is plain: KHR_materials_unlit only (anything beside it makes
+    # glTF-Validator warn MULTIPLE_EXTENSIONS).
     for i, m in enumerate(minimal["materials"]):
-        if EXT in m.get("extensions", {}):
-            res.check(not (e := _errors(mat_v, m["extensions"][EXT])), f"minimal material {i}", str(e))
+        res.check(list(m.get("extensions", {})) == [UNLIT],
+                  f"minimal material {i} carries only {UNLIT}", str(m.get("extensions")))
     for name in ("unet_renderer.json", "unet_upsample_renderer.json", "none_renderer.json"):
         obj = json.loads((EXAMPLES / name).read_text())
         res.check(not (e := _errors(rend_v, obj)), f"examples/{name} against renderer schema", str(e))

@@ -11,10 +11,11 @@ use serde::Serialize;
 use crate::capture::{Capture, LoadOptions};
 use crate::export;
 use crate::train::config::TrainConfig;
-use crate::train::{self, views, Record, Trainer};
+use crate::train::checkpoint::{self, Checkpoint};
+use crate::train::{self, views, Checkpointing, Record, RunState, TrainError, Trainer};
 
 /// What to bake and where to put it.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct BakeOptions {
     /// Capture folder.
     pub capture: PathBuf,
@@ -28,6 +29,8 @@ pub struct BakeOptions {
     pub resume: bool,
     /// Show a progress bar (plain lines when stderr is not a terminal).
     pub progress: bool,
+    /// Wall-clock seconds between checkpoints.
+    pub checkpoint_every: f64,
 }
 
 /// Final figures of a bake.
@@ -113,14 +116,36 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let test_views = views::prepare(&capture.mesh, &capture.test);
     let mut trainer = Trainer::new(cfg.clone(), &train_views)?;
 
+    // Checkpoints live next to the output; --resume continues from the last one.
+    let ckpt_path = checkpoint::path_for(&opts.output);
+    let mut state = RunState::default();
+    if opts.resume && ckpt_path.is_file() {
+        let c = Checkpoint::read(&ckpt_path).map_err(TrainError::from)?;
+        state = trainer.restore(&c, &ckpt_path)?;
+        eprintln!("dnr-bake: resuming from {} at step {}", ckpt_path.display(), trainer.step);
+    }
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        // Only one handler per process may exist; a second bake in-process keeps the first.
+        let _ = ctrlc::set_handler(move || stop.store(true, std::sync::atomic::Ordering::SeqCst));
+    }
+    let ckpt = Checkpointing {
+        path: &ckpt_path,
+        every: opts.checkpoint_every,
+        stop: &stop,
+    };
+
     let bar = progress_bar(opts.progress, cfg);
     let last_psnr = std::cell::Cell::new(f64::NAN);
     let mut last_line = 0.0f64;
     let plain = !std::io::stderr().is_terminal();
-    let records = train::run(
+    train::run(
         &mut trainer,
+        &mut state,
         &train_views,
         &test_views,
+        Some(&ckpt),
         |t, secs| {
             if let Some(b) = &bar {
                 b.set_position(if cfg.time_budget > 0.0 { secs as u64 } else { t.step });
@@ -144,6 +169,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     if let Some(b) = bar {
         b.finish_and_clear();
     }
+    let records = state.records;
 
     let builder = export::build(
         &capture.mesh,
@@ -154,6 +180,10 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         dnr_format::model::DType::F16,
     )?;
     let asset_bytes = export::write(&builder, &opts.output)?;
+    // The asset is complete: the checkpoint is no longer needed.
+    if let Some(dir) = ckpt_path.parent() {
+        let _ = std::fs::remove_dir_all(dir);
+    }
 
     // Held-out error of what was written, through the runtime.
     let (test_psnr, test_mse, test_ssim) = if capture.test.is_empty() {

@@ -74,9 +74,12 @@ struct Args {
     /// Write a JSON report (configuration, timed records, final figures).
     #[arg(long)]
     report: Option<PathBuf>,
-    /// Continue a killed bake from its last checkpoint.
+    /// Continue a killed bake from its last checkpoint (OUTPUT.ckpt/ next to the output).
     #[arg(long)]
     resume: bool,
+    /// Seconds between checkpoints (also written on Ctrl-C).
+    #[arg(long, default_value_t = 30.0)]
+    checkpoint_every: f64,
     /// Print the final figures as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -136,6 +139,7 @@ fn run(a: Args) -> Result<()> {
         report: a.report.clone(),
         resume: a.resume,
         progress: true,
+        checkpoint_every: a.checkpoint_every,
     };
     let summary = bake(&cfg, &opts).with_context(|| format!("baking {}", a.capture.display()))?;
     if a.json {

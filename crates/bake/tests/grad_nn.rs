@@ -14,7 +14,7 @@ use dnr_bake::kernels::conv::{conv_backward, conv_forward};
 use dnr_bake::kernels::conv_transpose::{conv_transpose_backward, conv_transpose_forward};
 use dnr_bake::kernels::dense::{dense_backward, mlp_backward, mlp_forward};
 use dnr_bake::kernels::loss::{colour_l1_loss, l1_loss, texture_l2_reg};
-use dnr_bake::kernels::norm::instance_norm_backward;
+use dnr_bake::kernels::norm::{instance_norm_backward, lrelu_instance_norm_backward};
 use dnr_bake::kernels::unet::UNetTrain;
 use dnr_bake::kernels::upsample::upsample_nearest2_backward;
 use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
@@ -182,6 +182,7 @@ fn lrelu64(x: &mut [f64]) {
 
 // ---------------------------------------------------------------- layers
 
+#[allow(clippy::too_many_arguments)]
 fn check_conv(seed: u64, ci: usize, co: usize, h: usize, w: usize, k: usize, s: usize, p: usize) {
     let mut r = rng(seed);
     let g = ConvGeom {
@@ -329,6 +330,26 @@ fn instance_norm_backward_matches_fd() {
         });
         assert_grad(&g.data, &num, TOL, &format!("instance norm {c}x{h}x{w}"));
     }
+}
+
+#[test]
+fn fused_lrelu_norm_backward_matches_fd() {
+    let mut r = rng(26);
+    let (c, h, w) = (3, 7, 5);
+    let x = randt(&mut r, c, h, w);
+    let mut z = x.clone();
+    let st = instance_norm(&mut z);
+    let up = randv(&mut r, z.data.len());
+    let mut g = Tensor::from_vec(c, h, w, up.clone()).unwrap();
+    lrelu_instance_norm_backward(&z, &st, 0.2, &mut g);
+    let r64 = f64s(&up);
+    let num = fd(&x.data, &|xx| {
+        let mut v = xx.to_vec();
+        norm64(&mut v, c);
+        lrelu64(&mut v);
+        dot(&r64, &v)
+    });
+    assert_grad(&g.data, &num, TOL, "lrelu(instance norm)");
 }
 
 #[test]
@@ -704,6 +725,18 @@ fn adam_matches_reference_update() {
         assert!((*a as f64 - b).abs() < 1e-6, "adam: {a} vs {b}");
     }
     assert_eq!(opt.steps(), 5);
+    // The fused variant takes the same step and clears the gradient.
+    let (mut p1, mut p2) = (randv(&mut r, 37), Vec::new());
+    p2.extend_from_slice(&p1);
+    let (mut o1, mut o2) = (Adam::new(37, cfg), Adam::new(37, cfg));
+    for _ in 0..3 {
+        let g = randv(&mut r, 37);
+        let mut g2 = g.clone();
+        o1.step(&mut p1, &g);
+        o2.step_zero_grad(&mut p2, &mut g2);
+        assert!(g2.iter().all(|&v| v == 0.0));
+    }
+    assert_eq!(p1, p2);
 }
 
 #[test]

@@ -6,6 +6,9 @@
 //! rounding of the forward (about 1e-7 relative per pixel, summed over a few hundred pixels
 //! in f64), hence the tolerance `|analytic - fd| <= 1e-4 * (1 + |fd|)`.
 
+// Index loops mirror the math (pixel i, channel c) and compare several arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use dnr_bake::kernels::sample::{sample_backward, sample_backward_serial, sample_forward};
 use dnr_bake::kernels::sh::{modulate_backward, modulate_forward};
 use dnr_runtime::gbuffer::GBuffer;
@@ -20,10 +23,22 @@ fn close(a: f64, fd: f64) -> bool {
     (a - fd).abs() <= TOL * (1.0 + fd.abs())
 }
 
-fn pyramid(rng: &mut ChaCha8Rng, c: usize, sizes: &[(usize, usize)], ws: Wrap, wt: Wrap) -> Pyramid {
+fn pyramid(
+    rng: &mut ChaCha8Rng,
+    c: usize,
+    sizes: &[(usize, usize)],
+    ws: Wrap,
+    wt: Wrap,
+) -> Pyramid {
     let levels = sizes
         .iter()
-        .map(|&(w, h)| Level { width: w, height: h, data: (0..w * h * c).map(|_| rng.random_range(-1.0..1.0)).collect() })
+        .map(|&(w, h)| Level {
+            width: w,
+            height: h,
+            data: (0..w * h * c)
+                .map(|_| rng.random_range(-1.0..1.0))
+                .collect(),
+        })
         .collect();
     Pyramid::new(c, levels, ws, wt).unwrap()
 }
@@ -33,8 +48,16 @@ fn gbuffer(rng: &mut ChaCha8Rng, w: usize, h: usize) -> GBuffer {
     let mut g = GBuffer::new(w, h);
     for i in 0..w * h {
         g.uv[i] = [rng.random_range(-1.5..2.5), rng.random_range(-1.5..2.5)];
-        g.coverage[i] = if rng.random_range(0.0..1.0) < 0.8 { 1.0 } else { 0.0 };
-        let d = [rng.random_range(-1.0..1.0f32), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
+        g.coverage[i] = if rng.random_range(0.0..1.0) < 0.8 {
+            1.0
+        } else {
+            0.0
+        };
+        let d = [
+            rng.random_range(-1.0..1.0f32),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        ];
         let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-3);
         g.view_dir[i] = d.map(|x| x / n);
     }
@@ -71,13 +94,24 @@ fn sample_backward_matches_central_differences_for_all_wrap_modes() {
             let g = gbuffer(&mut rng, w, h);
             let up = random_vec(&mut rng, c * w * h);
             // `+=` semantics: start from a non-zero gradient.
-            let mut grads: Vec<Vec<f32>> = pyr.levels.iter().map(|l| vec![0.25; l.data.len()]).collect();
+            let mut grads: Vec<Vec<f32>> = pyr
+                .levels
+                .iter()
+                .map(|l| vec![0.25; l.data.len()])
+                .collect();
             let touched = sample_backward(&pyr, &g, &up, &mut grads).unwrap();
-            let mut serial: Vec<Vec<f32>> = pyr.levels.iter().map(|l| vec![0.25; l.data.len()]).collect();
+            let mut serial: Vec<Vec<f32>> = pyr
+                .levels
+                .iter()
+                .map(|l| vec![0.25; l.data.len()])
+                .collect();
             let touched_serial = sample_backward_serial(&pyr, &g, &up, &mut serial).unwrap();
             assert_eq!(touched, touched_serial);
             for k in 0..pyr.levels.len() {
-                assert!(touched[k].windows(2).all(|p| p[0] < p[1]), "touched list is ascending and unique");
+                assert!(
+                    touched[k].windows(2).all(|p| p[0] < p[1]),
+                    "touched list is ascending and unique"
+                );
                 for i in 0..pyr.levels[k].data.len() {
                     let mut p = pyr.clone();
                     p.levels[k].data[i] += H;
@@ -86,15 +120,24 @@ fn sample_backward_matches_central_differences_for_all_wrap_modes() {
                     let lm = loss_sample(&p, &g, &up);
                     let fd = (lp - lm) / (2.0 * H as f64);
                     let a = (grads[k][i] - 0.25) as f64;
-                    assert!(close(a, fd), "{ws:?}/{wt:?} level {k} value {i}: analytic {a} vs fd {fd}");
-                    assert!((grads[k][i] - serial[k][i]).abs() <= 1e-5, "parallel vs serial");
+                    assert!(
+                        close(a, fd),
+                        "{ws:?}/{wt:?} level {k} value {i}: analytic {a} vs fd {fd}"
+                    );
+                    assert!(
+                        (grads[k][i] - serial[k][i]).abs() <= 1e-5,
+                        "parallel vs serial"
+                    );
                     let texel = (i / c) as u32;
                     let is_touched = touched[k].binary_search(&texel).is_ok();
                     if !is_touched {
                         assert_eq!(grads[k][i], 0.25, "untouched texel got a gradient");
                     }
                     if fd.abs() > 1e-3 {
-                        assert!(is_touched, "texel {texel} of level {k} has a gradient but is not marked");
+                        assert!(
+                            is_touched,
+                            "texel {texel} of level {k} has a gradient but is not marked"
+                        );
                     }
                 }
             }
@@ -125,7 +168,11 @@ fn sh_backward_matches_central_differences() {
             fp[i] -= 2.0 * H;
             let lm = loss(&fp);
             let fd = (lp - lm) / (2.0 * H as f64);
-            assert!(close(d[i] as f64, fd), "first {first} degree {degree} value {i}: {} vs {fd}", d[i]);
+            assert!(
+                close(d[i] as f64, fd),
+                "first {first} degree {degree} value {i}: {} vs {fd}",
+                d[i]
+            );
         }
     }
 }
@@ -134,7 +181,13 @@ fn sh_backward_matches_central_differences() {
 fn sample_then_sh_chain_matches_central_differences() {
     let mut rng = ChaCha8Rng::seed_from_u64(12);
     let (w, h, c, first, degree) = (13, 11, 5, 1usize, 1u32);
-    let pyr = pyramid(&mut rng, c, &[(7, 5), (4, 3)], Wrap::Repeat, Wrap::MirroredRepeat);
+    let pyr = pyramid(
+        &mut rng,
+        c,
+        &[(7, 5), (4, 3)],
+        Wrap::Repeat,
+        Wrap::MirroredRepeat,
+    );
     let g = gbuffer(&mut rng, w, h);
     let up = random_vec(&mut rng, c * w * h);
     let loss = |p: &Pyramid| {
@@ -154,7 +207,11 @@ fn sample_then_sh_chain_matches_central_differences() {
             let lp = loss(&p);
             p.levels[k].data[i] -= 2.0 * H;
             let fd = (lp - loss(&p)) / (2.0 * H as f64);
-            assert!(close(grads[k][i] as f64, fd), "level {k} value {i}: {} vs {fd}", grads[k][i]);
+            assert!(
+                close(grads[k][i] as f64, fd),
+                "level {k} value {i}: {} vs {fd}",
+                grads[k][i]
+            );
         }
     }
 }
@@ -164,21 +221,41 @@ fn sample_backward_is_bit_identical_across_runs_and_thread_counts() {
     let mut rng = ChaCha8Rng::seed_from_u64(13);
     // Level 0 spans several gather chunks (96 x 64 = 6144 texels); a dense, small texture
     // region makes many pixels share texels.
-    let pyr = pyramid(&mut rng, 16, &[(96, 64), (48, 32), (24, 16)], Wrap::Repeat, Wrap::ClampToEdge);
+    let pyr = pyramid(
+        &mut rng,
+        16,
+        &[(96, 64), (48, 32), (24, 16)],
+        Wrap::Repeat,
+        Wrap::ClampToEdge,
+    );
     let (w, h) = (61, 47);
     let mut g = gbuffer(&mut rng, w, h);
     for i in 0..w * h {
         if i % 3 == 0 {
-            g.uv[i] = [0.5 + 0.01 * rng.random_range(-1.0..1.0f32), 0.5 + 0.01 * rng.random_range(-1.0..1.0f32)];
+            g.uv[i] = [
+                0.5 + 0.01 * rng.random_range(-1.0..1.0f32),
+                0.5 + 0.01 * rng.random_range(-1.0..1.0f32),
+            ];
         }
     }
     let up = random_vec(&mut rng, 16 * w * h);
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
-            let mut grads: Vec<Vec<f32>> = pyr.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
+            let mut grads: Vec<Vec<f32>> =
+                pyr.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
             let t = sample_backward(&pyr, &g, &up, &mut grads).unwrap();
-            (grads.concat().iter().map(|x| x.to_bits()).collect::<Vec<u32>>(), t)
+            (
+                grads
+                    .concat()
+                    .iter()
+                    .map(|x| x.to_bits())
+                    .collect::<Vec<u32>>(),
+                t,
+            )
         })
     };
     let reference = run(1);
@@ -202,7 +279,7 @@ fn sample_backward_rejects_mismatched_shapes() {
     assert!(sample_backward(&pyr, &g, &up, &mut short).is_err());
     assert!(sample_backward(&pyr, &g, &up[1..], &mut ok()).is_err());
     assert!(sample_backward_serial(&pyr, &g, &up[1..], &mut ok()).is_err());
-    assert!(modulate_backward(&mut vec![0.0; 10], &g.view_dir, &g.coverage, 0, 0).is_err());
+    assert!(modulate_backward(&mut [0.0; 10], &g.view_dir, &g.coverage, 0, 0).is_err());
 }
 
 /// Serial scatter vs the parallel counting-sort gather on a training-sized problem
@@ -212,7 +289,13 @@ fn sample_backward_rejects_mismatched_shapes() {
 #[ignore = "timing only"]
 fn sample_backward_timing() {
     let mut rng = ChaCha8Rng::seed_from_u64(15);
-    let pyr = pyramid(&mut rng, 16, &[(512, 512), (256, 256), (128, 128), (64, 64)], Wrap::Repeat, Wrap::Repeat);
+    let pyr = pyramid(
+        &mut rng,
+        16,
+        &[(512, 512), (256, 256), (128, 128), (64, 64)],
+        Wrap::Repeat,
+        Wrap::Repeat,
+    );
     let (w, h) = (256, 256);
     let mut g = GBuffer::new(w, h);
     for y in 0..h {
@@ -222,7 +305,10 @@ fn sample_backward_timing() {
                 let i = y * w + x;
                 g.coverage[i] = 1.0;
                 // A smooth, locally coherent uv map, like a rasterised mesh.
-                g.uv[i] = [0.3 + x as f32 / 600.0 + 0.02 * (y as f32 / 9.0).sin(), 0.2 + y as f32 / 500.0];
+                g.uv[i] = [
+                    0.3 + x as f32 / 600.0 + 0.02 * (y as f32 / 9.0).sin(),
+                    0.2 + y as f32 / 500.0,
+                ];
             }
         }
     }
@@ -230,7 +316,10 @@ fn sample_backward_timing() {
     let mut grads: Vec<Vec<f32>> = pyr.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
     let n = 20;
     for (name, f) in [
-        ("parallel", sample_backward as fn(&Pyramid, &GBuffer, &[f32], &mut [Vec<f32>]) -> _),
+        (
+            "parallel",
+            sample_backward as fn(&Pyramid, &GBuffer, &[f32], &mut [Vec<f32>]) -> _,
+        ),
         ("serial", sample_backward_serial),
     ] {
         f(&pyr, &g, &up, &mut grads).unwrap();
@@ -238,12 +327,19 @@ fn sample_backward_timing() {
         for _ in 0..n {
             f(&pyr, &g, &up, &mut grads).unwrap();
         }
-        println!("{name}: {:.2} ms ({} threads)", t.elapsed().as_secs_f64() * 1e3 / n as f64, rayon::current_num_threads());
+        println!(
+            "{name}: {:.2} ms ({} threads)",
+            t.elapsed().as_secs_f64() * 1e3 / n as f64,
+            rayon::current_num_threads()
+        );
     }
     let mut out = vec![0.0; up.len()];
     let t = std::time::Instant::now();
     for _ in 0..n {
         sample_forward(&pyr, &g, &mut out).unwrap();
     }
-    println!("forward: {:.2} ms", t.elapsed().as_secs_f64() * 1e3 / n as f64);
+    println!(
+        "forward: {:.2} ms",
+        t.elapsed().as_secs_f64() * 1e3 / n as f64
+    );
 }

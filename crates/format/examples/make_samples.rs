@@ -128,7 +128,8 @@ struct One {
     dtype: DType,
 }
 
-/// A one-quad asset with one texture, one renderer, one material.
+/// A one-quad asset with one texture, one renderer and the quad bound to them (with its
+/// unlit fallback material).
 fn single(seed: u64, o: One) -> Res<Container> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut b = AssetBuilder::new();
@@ -179,7 +180,8 @@ fn quat(axis: [f32; 3], degrees: f32) -> [f32; 4] {
 }
 
 /// Two nodes (one child, rotated and scaled), a two-primitive mesh and a second mesh, two
-/// materials with different textures (one with degree-3 SH) and renderers.
+/// bindings with different textures (one with degree-3 SH) and renderers, each with its own
+/// fallback material.
 fn scene(seed: u64) -> Res<Container> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut b = AssetBuilder::new();
@@ -267,6 +269,11 @@ fn edit(glb: &[u8], f: impl FnOnce(&mut Value, &mut Vec<u8>)) -> Res<Vec<u8>> {
 
 fn ext(v: &mut Value) -> &mut Value {
     &mut v["extensions"][EXTENSION_NAME]
+}
+
+/// The binding object on primitive 0 of mesh 0.
+fn binding(v: &mut Value) -> &mut Value {
+    &mut v["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]
 }
 
 fn as_usize(v: &Value) -> usize {
@@ -504,7 +511,7 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     });
 
     let sc = scene(9)?;
-    w.put("valid/scene_multi_primitive.glb", &glb(&sc)?, "3 nodes (child with rotation + non-uniform scale), a 2-primitive mesh instanced twice, a pyramid without normals, 2 materials/textures/renderers (none; mlp with SH degree 3, 19 channels, f32), CLAMP_TO_EDGE/MIRRORED_REPEAT, EXR RLE and PIZ", &[])?;
+    w.put("valid/scene_multi_primitive.glb", &glb(&sc)?, "3 nodes (child with rotation + non-uniform scale), a 2-primitive mesh instanced twice, a pyramid without normals, primitives bound to 2 textures/renderers (none; mlp with SH degree 3, 19 channels, f32), CLAMP_TO_EDGE/MIRRORED_REPEAT, EXR RLE and PIZ", &[])?;
 
     // ---- invalid, derived from the valid ones
     let base = glb(&mlp16)?;
@@ -574,14 +581,40 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     })?;
     w.put("invalid/position_accessor_index.glb", &out, "POSITION refers to accessor 99 (fuzz regression: gltf-json 1.4's validator indexes it unchecked)", &["INDEX_OUT_OF_RANGE"])?;
 
+    let out = edit(&base, |v, _| binding(v)["neuralTexture"] = json!(5))?;
+    w.put(
+        "invalid/primitive_texture_index.glb",
+        &out,
+        "the primitive's binding refers to neural texture 5 of 1",
+        &["INDEX_OUT_OF_RANGE"],
+    )?;
+
+    let out = edit(&base, |v, _| binding(v)["renderer"] = json!(3))?;
+    w.put(
+        "invalid/primitive_renderer_index.glb",
+        &out,
+        "the primitive's binding refers to renderer 3 of 1",
+        &["INDEX_OUT_OF_RANGE"],
+    )?;
+
+    let out = edit(&base, |v, _| binding(v)["neuralTexture"] = json!("zero"))?;
+    w.put(
+        "invalid/binding_texture_string.glb",
+        &out,
+        "the primitive's binding has a string neuralTexture",
+        &["JSON_SCHEMA"],
+    )?;
+
     let out = edit(&base, |v, _| {
-        v["materials"][0]["extensions"][EXTENSION_NAME]["neuralTexture"] = json!(5)
+        if let Some(o) = v.as_object_mut() {
+            o.remove("extensions");
+        }
     })?;
     w.put(
-        "invalid/material_texture_index.glb",
+        "invalid/binding_without_root.glb",
         &out,
-        "material refers to neural texture 5 of 1",
-        &["INDEX_OUT_OF_RANGE"],
+        "a primitive carries a binding but the root extension object is gone",
+        &["JSON_SCHEMA"],
     )?;
 
     let out = edit(&base, |v, _| {
@@ -858,8 +891,32 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     w.put(
         "invalid/required_without_fallback.glb",
         &out,
-        "extension in extensionsRequired and the material has no baseColorTexture",
+        "extension in extensionsRequired and the fallback material has no baseColorTexture",
         &["EXTENSION_REQUIRED", "FALLBACK_MISSING"],
+    )?;
+
+    let out = edit(&base, |v, _| {
+        if let Some(o) = v["materials"][0].as_object_mut() {
+            o.remove("extensions");
+        }
+    })?;
+    w.put(
+        "invalid/fallback_no_unlit.glb",
+        &out,
+        "the bound primitive's material lacks KHR_materials_unlit",
+        &["FALLBACK_MISSING"],
+    )?;
+
+    let out = edit(&base, |v, _| {
+        if let Some(o) = v["meshes"][0]["primitives"][0].as_object_mut() {
+            o.remove("material");
+        }
+    })?;
+    w.put(
+        "invalid/fallback_no_material.glb",
+        &out,
+        "the bound primitive has no material",
+        &["FALLBACK_MISSING"],
     )?;
 
     let out = edit(&base, |v, _| {
@@ -880,13 +937,11 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         &["VERSION_UNSUPPORTED"],
     )?;
 
-    let out = edit(&base, |v, _| {
-        v["materials"][0]["extensions"][EXTENSION_NAME]["texCoord"] = json!(1)
-    })?;
+    let out = edit(&base, |v, _| binding(v)["texCoord"] = json!(1))?;
     w.put(
         "invalid/texcoord_missing.glb",
         &out,
-        "material addresses TEXCOORD_1, the primitive has only TEXCOORD_0 (a warning: exit code 0)",
+        "the binding addresses TEXCOORD_1, the primitive has only TEXCOORD_0 (a warning: exit code 0)",
         &["TEXCOORD_MISSING"],
     )?;
 

@@ -17,7 +17,7 @@ use crate::container::{name_file, Container};
 use crate::error::{Error, Result};
 use crate::exr_codec::{decode_level, encode_level, LevelCompression, LevelExpect, TextureLevel};
 use crate::limits::Limits;
-use crate::model::{self, DType, MaterialExtension, Renderer, ViewDependence};
+use crate::model::{self, DType, PrimitiveExtension, Renderer, ViewDependence};
 use crate::weights::{crc32, decode_tensor, pack_tensors, TensorF32};
 use crate::EXTENSION_NAME;
 
@@ -151,8 +151,22 @@ pub struct Asset {
     pub textures: Vec<DecodedTexture>,
     /// Decoded renderers, by index.
     pub renderers: Vec<DecodedRenderer>,
-    /// Each core material's extension object (`None` for plain materials).
-    pub materials: Vec<Option<MaterialExtension>>,
+    /// Each mesh primitive's binding object, indexed `[mesh][primitive]` like the glTF
+    /// `meshes[m].primitives[p]` (`None` for primitives without the extension).
+    pub primitives: Vec<Vec<Option<PrimitiveExtension>>>,
+    /// Transitional, derived from `primitives` for code that still binds by material: for
+    /// each glTF material, the binding shared by every primitive that uses it, or `None` when
+    /// no primitive uses it, one of them is unbound, or their bindings differ. Exact for
+    /// assets written by [`AssetBuilder`] (one fallback material per binding). New code
+    /// reads [`Asset::binding`] / `primitives`; this field will be removed.
+    pub materials: Vec<Option<PrimitiveExtension>>,
+}
+
+impl Asset {
+    /// The binding of `meshes[mesh].primitives[primitive]`, if it has one.
+    pub fn binding(&self, mesh: usize, primitive: usize) -> Option<&PrimitiveExtension> {
+        self.primitives.get(mesh)?.get(primitive)?.as_ref()
+    }
 }
 
 /// The root extension value of a document, if any.
@@ -160,9 +174,94 @@ pub fn root_extension_value(root: &json::Root) -> Option<&Value> {
     root.extensions.as_ref()?.others.get(EXTENSION_NAME)
 }
 
-/// The extension value of a material, if any.
-pub fn material_extension_value(m: &json::Material) -> Option<&Value> {
-    m.extensions.as_ref()?.others.get(EXTENSION_NAME)
+/// The extension value (binding object) of a mesh primitive, if any.
+pub fn primitive_extension_value(p: &json::mesh::Primitive) -> Option<&Value> {
+    p.extensions.as_ref()?.others.get(EXTENSION_NAME)
+}
+
+/// Every mesh primitive that carries the extension: `(mesh, primitive, value)`.
+pub fn bound_primitive_values(root: &json::Root) -> Vec<(usize, usize, &Value)> {
+    root.meshes
+        .iter()
+        .enumerate()
+        .flat_map(|(mi, m)| {
+            m.primitives
+                .iter()
+                .enumerate()
+                .filter_map(move |(pi, p)| primitive_extension_value(p).map(|v| (mi, pi, v)))
+        })
+        .collect()
+}
+
+/// Why a bound primitive's core material is not a complete fallback (`FALLBACK_MISSING`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FallbackProblem {
+    /// The primitive has no `material`.
+    NoMaterial,
+    /// The material (by index) has no `pbrMetallicRoughness.baseColorTexture`.
+    NoBaseColorTexture(usize),
+    /// The material (by index) does not carry `KHR_materials_unlit`.
+    NoUnlit(usize),
+}
+
+impl std::fmt::Display for FallbackProblem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FallbackProblem::NoMaterial => {
+                f.write_str("the primitive has no material to fall back to")
+            }
+            FallbackProblem::NoBaseColorTexture(m) => {
+                write!(f, "fallback material {m} has no baseColorTexture")
+            }
+            FallbackProblem::NoUnlit(m) => {
+                write!(f, "fallback material {m} lacks KHR_materials_unlit")
+            }
+        }
+    }
+}
+
+/// Checks the fallback of a primitive that carries the extension. A material index out of
+/// range is not a fallback problem (the core checks report it).
+pub fn fallback_problem(root: &json::Root, p: &json::mesh::Primitive) -> Option<FallbackProblem> {
+    let Some(index) = p.material else {
+        return Some(FallbackProblem::NoMaterial);
+    };
+    let i = index.value();
+    let m = root.materials.get(i)?;
+    if m.pbr_metallic_roughness.base_color_texture.is_none() {
+        return Some(FallbackProblem::NoBaseColorTexture(i));
+    }
+    let unlit = m
+        .extensions
+        .as_ref()
+        .is_some_and(|e| e.unlit.is_some() || e.others.contains_key("KHR_materials_unlit"));
+    (!unlit).then_some(FallbackProblem::NoUnlit(i))
+}
+
+/// The transitional per-material view of the bindings (see [`Asset::materials`]).
+fn bindings_by_material(
+    root: &json::Root,
+    primitives: &[Vec<Option<PrimitiveExtension>>],
+) -> Vec<Option<PrimitiveExtension>> {
+    let key = |b: &Option<PrimitiveExtension>| {
+        b.as_ref()
+            .map(|b| (b.neural_texture, b.renderer, b.tex_coord))
+    };
+    // None: no primitive seen yet; Some(None): conflicting or unbound use.
+    let mut seen: Vec<Option<Option<PrimitiveExtension>>> = vec![None; root.materials.len()];
+    for (mesh, row) in root.meshes.iter().zip(primitives) {
+        for (p, b) in mesh.primitives.iter().zip(row) {
+            let Some(slot) = p.material.and_then(|m| seen.get_mut(m.value())) else {
+                continue;
+            };
+            match slot {
+                None => *slot = Some(b.clone()),
+                Some(prev) if key(prev) != key(b) => *slot = Some(None),
+                Some(_) => {}
+            }
+        }
+    }
+    seen.into_iter().map(Option::flatten).collect()
 }
 
 /// Reads and decodes an asset file (`.glb` or `.gltf`) under default [`Limits`].
@@ -213,17 +312,21 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
         // Every view must lie inside its buffer, used by the extension or not.
         container.view_bytes(i as u32)?;
     }
-    let mut materials = Vec::with_capacity(root.materials.len());
-    for (i, m) in root.materials.iter().enumerate() {
-        materials.push(match material_extension_value(m) {
-            Some(v) => Some(
-                MaterialExtension::deserialize_from(v)
-                    .map_err(|e| Error::invalid(format!("material {i} extension: {e}")))?,
-            ),
-            None => None,
-        });
+    let mut primitives = Vec::with_capacity(root.meshes.len());
+    for (mi, mesh) in root.meshes.iter().enumerate() {
+        let mut row = Vec::with_capacity(mesh.primitives.len());
+        for (pi, p) in mesh.primitives.iter().enumerate() {
+            row.push(match primitive_extension_value(p) {
+                Some(v) => Some(PrimitiveExtension::deserialize_from(v).map_err(|e| {
+                    Error::invalid(format!("mesh {mi} primitive {pi} extension: {e}"))
+                })?),
+                None => None,
+            });
+        }
+        primitives.push(row);
     }
-    let uses = root_extension_value(root).is_some() || materials.iter().any(Option::is_some);
+    let any_bound = primitives.iter().flatten().any(Option::is_some);
+    let uses = root_extension_value(root).is_some() || any_bound;
     if uses && !root.extensions_used.iter().any(|e| e == EXTENSION_NAME) {
         return Err(Error::invalid(format!(
             "`{EXTENSION_NAME}` is used but not in extensionsUsed"
@@ -234,17 +337,23 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             "`{EXTENSION_NAME}` is in extensionsRequired"
         )));
     }
-    for (i, m) in root.materials.iter().enumerate() {
-        if materials[i].is_some() && m.pbr_metallic_roughness.base_color_texture.is_none() {
-            return Err(Error::invalid(format!(
-                "material {i} has no baseColorTexture fallback"
-            )));
+    for (mi, mesh) in root.meshes.iter().enumerate() {
+        for (pi, p) in mesh.primitives.iter().enumerate() {
+            if primitives[mi][pi].is_none() {
+                continue;
+            }
+            if let Some(problem) = fallback_problem(root, p) {
+                return Err(Error::invalid(format!(
+                    "mesh {mi} primitive {pi}: {problem}"
+                )));
+            }
         }
     }
+    let materials = bindings_by_material(root, &primitives);
     let Some(value) = root_extension_value(root) else {
-        if materials.iter().any(Option::is_some) {
+        if any_bound {
             return Err(Error::invalid(
-                "materials use the extension but the root has none",
+                "mesh primitives use the extension but the root has none",
             ));
         }
         return Ok(Asset {
@@ -252,6 +361,7 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             extension: None,
             textures: Vec::new(),
             renderers: Vec::new(),
+            primitives,
             materials,
         });
     };
@@ -427,20 +537,21 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             tensors,
         });
     }
-    for (mi, m) in materials.iter().enumerate() {
-        if let Some(m) = m {
-            let t = textures.get(m.neural_texture as usize);
-            let r = renderers.get(m.renderer as usize);
+    for (mi, row) in primitives.iter().enumerate() {
+        for (pi, b) in row.iter().enumerate() {
+            let Some(b) = b else { continue };
+            let t = textures.get(b.neural_texture as usize);
+            let r = renderers.get(b.renderer as usize);
             match (t, r) {
                 (Some(t), Some(r)) if t.channels == r.spec.input_channels => {}
                 (Some(_), Some(_)) => {
                     return Err(Error::invalid(format!(
-                        "material {mi}: texture channels differ from renderer inputChannels"
-                    )))
+                    "mesh {mi} primitive {pi}: texture channels differ from renderer inputChannels"
+                )))
                 }
                 _ => {
                     return Err(Error::invalid(format!(
-                        "material {mi}: texture or renderer index"
+                        "mesh {mi} primitive {pi}: texture or renderer index"
                     )))
                 }
             }
@@ -451,11 +562,12 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
         extension: Some(ext),
         textures,
         renderers,
+        primitives,
         materials,
     })
 }
 
-impl MaterialExtension {
+impl PrimitiveExtension {
     fn deserialize_from(v: &Value) -> serde_json::Result<Self> {
         serde::Deserialize::deserialize(v)
     }
@@ -475,7 +587,8 @@ pub struct Primitive {
     pub tex_coords: Vec<[f32; 2]>,
     /// Triangle indices (three per triangle).
     pub indices: Vec<u32>,
-    /// Material index in the builder, if any.
+    /// Index of a [`MaterialDesc`] in the builder, if any: the primitive then carries that
+    /// neural binding (`texCoord` 0) and uses its fallback material.
     pub material: Option<usize>,
 }
 
@@ -535,7 +648,11 @@ pub struct RendererDesc {
     pub dtype: DType,
 }
 
-/// A material pairing a neural texture with a renderer.
+/// A neural binding (a neural texture paired with a renderer) and the fallback material made
+/// for it. Every [`Primitive`] whose `material` names it carries the binding in its own
+/// `extensions.EXT_deferred_neural_rendering` and uses the fallback as its core material: a
+/// plain material with the PNG of channels 0..2 as `baseColorTexture` and
+/// `KHR_materials_unlit`, holding nothing of this extension.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MaterialDesc {
     /// Optional name.
@@ -546,9 +663,9 @@ pub struct MaterialDesc {
     pub renderer: usize,
 }
 
-/// Builds a complete, valid asset: meshes, nodes, neural textures, renderers and
-/// materials with a PNG fallback (channels 0..2 of the summed pyramid at the finest
-/// resolution) and `KHR_materials_unlit`.
+/// Builds a complete, valid asset: meshes, nodes, neural textures, renderers, the bindings
+/// on the mesh primitives and, per [`MaterialDesc`], a fallback material with a PNG (channels
+/// 0..2 of the summed pyramid at the finest resolution) and `KHR_materials_unlit`.
 #[derive(Clone, Debug, Default)]
 pub struct AssetBuilder {
     /// `asset.generator`.
@@ -561,7 +678,8 @@ pub struct AssetBuilder {
     pub textures: Vec<NeuralTextureDesc>,
     /// Renderers.
     pub renderers: Vec<RendererDesc>,
-    /// Materials.
+    /// Neural bindings with their fallback materials (glTF material `i` is the fallback of
+    /// `materials[i]`).
     pub materials: Vec<MaterialDesc>,
 }
 
@@ -628,7 +746,8 @@ impl AssetBuilder {
         self.renderers.len() - 1
     }
 
-    /// Adds a material, returning its index.
+    /// Adds a neural binding with its fallback material, returning its index (for
+    /// [`Primitive::material`]).
     pub fn add_material(&mut self, m: MaterialDesc) -> usize {
         self.materials.push(m);
         self.materials.len() - 1
@@ -842,15 +961,7 @@ impl AssetBuilder {
                     m.renderer
                 )));
             }
-            let me = MaterialExtension {
-                neural_texture: u32::try_from(m.neural_texture)
-                    .map_err(|_| Error::invalid("index"))?,
-                renderer: u32::try_from(m.renderer).map_err(|_| Error::invalid("index"))?,
-                tex_coord: 0,
-                ..Default::default()
-            };
-            let mut others = serde_json::Map::new();
-            others.insert(EXTENSION_NAME.to_string(), to_value(&me)?);
+            // A plain core material: the binding lives on the primitives (encode_primitive).
             root.materials.push(json::Material {
                 name: m.name.clone(),
                 pbr_metallic_roughness: json::material::PbrMetallicRoughness {
@@ -867,22 +978,10 @@ impl AssetBuilder {
                 #[allow(clippy::needless_update)]
                 extensions: Some(json::extensions::material::Material {
                     unlit: Some(json::extensions::material::Unlit {}),
-                    others,
                     ..Default::default()
                 }),
                 ..Default::default()
             });
-        }
-        for (mi, (_, prims)) in self.meshes.iter().enumerate() {
-            if let Some(m) = prims
-                .iter()
-                .filter_map(|p| p.material)
-                .find(|&m| m >= self.materials.len())
-            {
-                return Err(Error::invalid(format!(
-                    "mesh {mi}: material {m} does not exist"
-                )));
-            }
         }
 
         let mut root_ext = json::extensions::root::Root::default();
@@ -929,6 +1028,31 @@ impl AssetBuilder {
         {
             return Err(what("indices are not a triangle list into the vertices"));
         }
+        let binding = match p.material {
+            None => None,
+            Some(m) => {
+                let d = self
+                    .materials
+                    .get(m)
+                    .ok_or_else(|| what(&format!("material {m} does not exist")))?;
+                let b = PrimitiveExtension {
+                    neural_texture: u32::try_from(d.neural_texture)
+                        .map_err(|_| what("neural texture index beyond u32"))?,
+                    renderer: u32::try_from(d.renderer)
+                        .map_err(|_| what("renderer index beyond u32"))?,
+                    tex_coord: 0,
+                    ..Default::default()
+                };
+                let mut others = serde_json::Map::new();
+                others.insert(EXTENSION_NAME.to_string(), to_value(&b)?);
+                // More fields exist when other crates enable more gltf-json features.
+                #[allow(clippy::needless_update)]
+                Some(json::extensions::mesh::Primitive {
+                    others,
+                    ..Default::default()
+                })
+            }
+        };
         let mut accessor = |root: &mut json::Root,
                             bytes: Vec<u8>,
                             count: usize,
@@ -1028,7 +1152,7 @@ impl AssetBuilder {
         )?;
         Ok(json::mesh::Primitive {
             attributes,
-            extensions: None,
+            extensions: binding,
             extras: Default::default(),
             indices: Some(indices),
             material: p.material.map(idx).transpose()?,

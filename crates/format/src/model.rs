@@ -39,10 +39,14 @@ pub struct Extension {
     pub others: Map<String, Value>,
 }
 
-/// Material object: `materials[i].extensions.EXT_deferred_neural_rendering`.
+/// Binding object of a mesh primitive:
+/// `meshes[m].primitives[p].extensions.EXT_deferred_neural_rendering`.
+///
+/// The primitive's core material is its fallback (an unlit base colour texture) and carries
+/// nothing of this extension.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
-pub struct MaterialExtension {
+pub struct PrimitiveExtension {
     /// Index of the neural texture in the root object's `neuralTextures`.
     pub neural_texture: u32,
     /// Index of the renderer in the root object's `renderers`.

@@ -90,9 +90,16 @@ impl GBuffer {
     pub fn is_consistent(&self) -> bool {
         let n = self.width.checked_mul(self.height);
         n.is_some_and(|n| {
-            [self.uv.len(), self.coverage.len(), self.prim.len(), self.tri.len(), self.depth.len(), self.view_dir.len()]
-                .iter()
-                .all(|&l| l == n)
+            [
+                self.uv.len(),
+                self.coverage.len(),
+                self.prim.len(),
+                self.tri.len(),
+                self.depth.len(),
+                self.view_dir.len(),
+            ]
+            .iter()
+            .all(|&l| l == n)
         })
     }
 }

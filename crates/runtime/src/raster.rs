@@ -113,19 +113,30 @@ pub struct CoverageCounts {
 /// Counts coverage hits per pixel; see [`CoverageCounts`].
 pub fn coverage_counts(scene: &Scene, camera: &Camera) -> CoverageCounts {
     let (w, h) = (camera.width as usize, camera.height as usize);
-    let mut c = CoverageCounts { width: w, height: h, front: vec![0; w * h], back: vec![0; w * h] };
-    let Some(prep) = Prepared::new(scene, camera) else { return c };
+    let mut c = CoverageCounts {
+        width: w,
+        height: h,
+        front: vec![0; w * h],
+        back: vec![0; w * h],
+    };
+    let Some(prep) = Prepared::new(scene, camera) else {
+        return c;
+    };
     let rows = BAND_ROWS * w;
-    c.front.par_chunks_mut(rows).zip(c.back.par_chunks_mut(rows)).enumerate().for_each(|(bi, (front, back))| {
-        let list = &prep.bins.items[prep.bins.offsets[bi]..prep.bins.offsets[bi + 1]];
-        let y0 = bi * BAND_ROWS;
-        let y1 = y0 + front.len() / w - 1;
-        for &t in list {
-            let t = &prep.tris[t as usize];
-            let counts = if t.front { &mut *front } else { &mut *back };
-            for_each_inside(t, y0, y1, |px, py, _| counts[(py - y0) * w + px] += 1);
-        }
-    });
+    c.front
+        .par_chunks_mut(rows)
+        .zip(c.back.par_chunks_mut(rows))
+        .enumerate()
+        .for_each(|(bi, (front, back))| {
+            let list = &prep.bins.items[prep.bins.offsets[bi]..prep.bins.offsets[bi + 1]];
+            let y0 = bi * BAND_ROWS;
+            let y1 = y0 + front.len() / w - 1;
+            for &t in list {
+                let t = &prep.tris[t as usize];
+                let counts = if t.front { &mut *front } else { &mut *back };
+                for_each_inside(t, y0, y1, |px, py, _| counts[(py - y0) * w + px] += 1);
+            }
+        });
     c
 }
 
@@ -145,17 +156,26 @@ struct Band<'a> {
 fn gbuffer_bands(g: &mut GBuffer, w: usize) -> Vec<Band<'_>> {
     let rows = BAND_ROWS * w.max(1);
     let mut bands = Vec::with_capacity(g.len().div_ceil(rows));
-    let iter = g
-        .uv
-        .chunks_mut(rows)
-        .zip(g.coverage.chunks_mut(rows))
-        .zip(g.prim.chunks_mut(rows))
-        .zip(g.tri.chunks_mut(rows))
-        .zip(g.depth.chunks_mut(rows))
-        .zip(g.view_dir.chunks_mut(rows));
+    let iter =
+        g.uv.chunks_mut(rows)
+            .zip(g.coverage.chunks_mut(rows))
+            .zip(g.prim.chunks_mut(rows))
+            .zip(g.tri.chunks_mut(rows))
+            .zip(g.depth.chunks_mut(rows))
+            .zip(g.view_dir.chunks_mut(rows));
     for (index, (((((uv, coverage), prim), tri), depth), view_dir)) in iter.enumerate() {
         let y0 = index * BAND_ROWS;
-        bands.push(Band { index, y0, y1: y0 + uv.len() / w - 1, uv, coverage, prim, tri, depth, view_dir });
+        bands.push(Band {
+            index,
+            y0,
+            y1: y0 + uv.len() / w - 1,
+            uv,
+            coverage,
+            prim,
+            tri,
+            depth,
+            view_dir,
+        });
     }
     bands
 }
@@ -215,8 +235,18 @@ struct Frame {
 impl Prepared {
     fn new(scene: &Scene, camera: &Camera) -> Option<Prepared> {
         let (w, h) = (camera.width as usize, camera.height as usize);
-        let (fx, fy, cx, cy) = (camera.fx as f64, camera.fy as f64, camera.cx as f64, camera.cy as f64);
-        let intrinsics_ok = fx > 0.0 && fy > 0.0 && fx.is_finite() && fy.is_finite() && cx.is_finite() && cy.is_finite();
+        let (fx, fy, cx, cy) = (
+            camera.fx as f64,
+            camera.fy as f64,
+            camera.cx as f64,
+            camera.cy as f64,
+        );
+        let intrinsics_ok = fx > 0.0
+            && fy > 0.0
+            && fx.is_finite()
+            && fy.is_finite()
+            && cx.is_finite()
+            && cy.is_finite();
         if w == 0 || h == 0 || w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE || !intrinsics_ok {
             return None;
         }
@@ -228,7 +258,11 @@ impl Prepared {
         let eye = c2w.w_axis.truncate();
 
         // Every vertex to camera space once (shared vertices stay bit-identical).
-        let cams: Vec<Vec<DVec3>> = scene.primitives.iter().map(|p| camera_space(&view, p)).collect();
+        let cams: Vec<Vec<DVec3>> = scene
+            .primitives
+            .iter()
+            .map(|p| camera_space(&view, p))
+            .collect();
         let near = near_from_nearest(nearest_vertex_distance(&cams));
 
         let g = GUARD_BAND;
@@ -253,8 +287,14 @@ impl Prepared {
         let mut chunks: Vec<Vec<SetupTri>> = Vec::new();
         for (pi, (p, cam)) in scene.primitives.iter().zip(&cams).enumerate() {
             let inv = p.world.as_dmat4().inverse();
-            let eye_local = inv.is_finite().then(|| inv.transform_point3(eye).as_vec3()).filter(|e| e.is_finite());
-            prims.push(PrimInfo { has_uvs: p.has_uvs(), eye_local });
+            let eye_local = inv
+                .is_finite()
+                .then(|| inv.transform_point3(eye).as_vec3())
+                .filter(|e| e.is_finite());
+            prims.push(PrimInfo {
+                has_uvs: p.has_uvs(),
+                eye_local,
+            });
             let Ok(pi) = u32::try_from(pi) else { break };
             let frame = &frame;
             let n_tris = p.indices.len() / 3;
@@ -266,9 +306,11 @@ impl Prepared {
                     for t in ci * SETUP_CHUNK..end {
                         let Ok(ti) = u32::try_from(t) else { break };
                         let ix = &p.indices[3 * t..3 * t + 3];
-                        let (Some(&a), Some(&b), Some(&c)) =
-                            (cam.get(ix[0] as usize), cam.get(ix[1] as usize), cam.get(ix[2] as usize))
-                        else {
+                        let (Some(&a), Some(&b), Some(&c)) = (
+                            cam.get(ix[0] as usize),
+                            cam.get(ix[1] as usize),
+                            cam.get(ix[2] as usize),
+                        ) else {
                             continue;
                         };
                         setup_triangle(frame, [a, b, c], pi, ti, &mut out);
@@ -288,11 +330,13 @@ impl Prepared {
 fn camera_space(view: &DMat4, p: &Primitive) -> Vec<DVec3> {
     let mv = *view * p.world.as_dmat4();
     let mut cam = vec![DVec3::ZERO; p.positions.len()];
-    cam.par_chunks_mut(4096).zip(p.positions.par_chunks(4096)).for_each(|(c, v)| {
-        for (c, v) in c.iter_mut().zip(v) {
-            *c = mv.transform_point3(v.as_dvec3());
-        }
-    });
+    cam.par_chunks_mut(4096)
+        .zip(p.positions.par_chunks(4096))
+        .for_each(|(c, v)| {
+            for (c, v) in c.iter_mut().zip(v) {
+                *c = mv.transform_point3(v.as_dvec3());
+            }
+        });
     cam
 }
 
@@ -300,7 +344,13 @@ fn camera_space(view: &DMat4, p: &Primitive) -> Vec<DVec3> {
 fn nearest_vertex_distance(cams: &[Vec<DVec3>]) -> f64 {
     cams.par_iter()
         .flat_map_iter(|c| c.iter())
-        .map(|p| if p.is_finite() { p.length() } else { f64::INFINITY })
+        .map(|p| {
+            if p.is_finite() {
+                p.length()
+            } else {
+                f64::INFINITY
+            }
+        })
         .reduce(|| f64::INFINITY, f64::min)
 }
 
@@ -320,7 +370,11 @@ pub fn near_distance(scene: &Scene, camera: &Camera) -> Option<f64> {
     if !view.is_finite() {
         return None;
     }
-    let cams: Vec<Vec<DVec3>> = scene.primitives.iter().map(|p| camera_space(&view, p)).collect();
+    let cams: Vec<Vec<DVec3>> = scene
+        .primitives
+        .iter()
+        .map(|p| camera_space(&view, p))
+        .collect();
     Some(near_from_nearest(nearest_vertex_distance(&cams)))
 }
 
@@ -371,9 +425,18 @@ fn setup_triangle(frame: &Frame, p: [DVec3; 3], prim: u32, tri: u32, out: &mut V
     }
     let mut poly = [ClipVert::default(); MAX_POLY];
     let mut n = 3;
-    poly[0] = ClipVert { p: p[0], b: DVec3::X };
-    poly[1] = ClipVert { p: p[1], b: DVec3::Y };
-    poly[2] = ClipVert { p: p[2], b: DVec3::Z };
+    poly[0] = ClipVert {
+        p: p[0],
+        b: DVec3::X,
+    };
+    poly[1] = ClipVert {
+        p: p[1],
+        b: DVec3::Y,
+    };
+    poly[2] = ClipVert {
+        p: p[2],
+        b: DVec3::Z,
+    };
     for (k, pl) in frame.planes.iter().enumerate() {
         if any_out[k] {
             n = clip_polygon(&mut poly, n, pl);
@@ -393,12 +456,23 @@ fn setup_triangle(frame: &Frame, p: [DVec3; 3], prim: u32, tri: u32, out: &mut V
         if !(x.abs() < COORD_LIMIT && y.abs() < COORD_LIMIT && iz.is_finite() && iz > 0.0) {
             return; // only reachable with absurd intrinsics; the guard band bounds the rest
         }
-        fixed[i] = [(x * ONE as f64).round() as i64, (y * ONE as f64).round() as i64];
+        fixed[i] = [
+            (x * ONE as f64).round() as i64,
+            (y * ONE as f64).round() as i64,
+        ];
         inv_z[i] = iz;
     }
     for i in 1..n - 1 {
         let ids = [0, i, i + 1];
-        emit(frame, &ids.map(|k| fixed[k]), &ids.map(|k| inv_z[k]), &ids.map(|k| poly[k].b), prim, tri, out);
+        emit(
+            frame,
+            &ids.map(|k| fixed[k]),
+            &ids.map(|k| inv_z[k]),
+            &ids.map(|k| poly[k].b),
+            prim,
+            tri,
+            out,
+        );
     }
 }
 
@@ -431,9 +505,16 @@ fn clip_polygon(poly: &mut [ClipVert; MAX_POLY], n: usize, pl: &DVec4) -> usize 
 /// so both triangles sharing the edge produce the bit-identical point.
 fn intersect(a: ClipVert, b: ClipVert, da: f64, db: f64) -> ClipVert {
     let a_first = (a.p.x, a.p.y, a.p.z) <= (b.p.x, b.p.y, b.p.z);
-    let (a, b, da, db) = if a_first { (a, b, da, db) } else { (b, a, db, da) };
+    let (a, b, da, db) = if a_first {
+        (a, b, da, db)
+    } else {
+        (b, a, db, da)
+    };
     let t = da / (da - db);
-    ClipVert { p: a.p + (b.p - a.p) * t, b: a.b + (b.b - a.b) * t }
+    ClipVert {
+        p: a.p + (b.p - a.p) * t,
+        b: a.b + (b.b - a.b) * t,
+    }
 }
 
 /// Edge function of edge a->b at p: twice the signed area of (a, b, p). Exact: every
@@ -453,7 +534,15 @@ fn is_top_left(a: [i64; 2], b: [i64; 2]) -> bool {
     dy < 0 || (dy == 0 && dx > 0)
 }
 
-fn emit(frame: &Frame, v: &[[i64; 2]; 3], iz: &[f64; 3], b: &[DVec3; 3], prim: u32, tri: u32, out: &mut Vec<SetupTri>) {
+fn emit(
+    frame: &Frame,
+    v: &[[i64; 2]; 3],
+    iz: &[f64; 3],
+    b: &[DVec3; 3],
+    prim: u32,
+    tri: u32,
+    out: &mut Vec<SetupTri>,
+) {
     let area = edge(v[0], v[1], v[2]);
     if area == 0 {
         return;
@@ -461,12 +550,23 @@ fn emit(frame: &Frame, v: &[[i64; 2]; 3], iz: &[f64; 3], b: &[DVec3; 3], prim: u
     // Negative area in y-down coordinates is counter-clockwise as seen: a glTF front face.
     let front = area < 0;
     let (v, iz, b, area) = if front {
-        ([v[0], v[2], v[1]], [iz[0], iz[2], iz[1]], [b[0], b[2], b[1]], -area)
+        (
+            [v[0], v[2], v[1]],
+            [iz[0], iz[2], iz[1]],
+            [b[0], b[2], b[1]],
+            -area,
+        )
     } else {
         (*v, *iz, *b, area)
     };
-    let (minx, maxx) = (v[0][0].min(v[1][0]).min(v[2][0]), v[0][0].max(v[1][0]).max(v[2][0]));
-    let (miny, maxy) = (v[0][1].min(v[1][1]).min(v[2][1]), v[0][1].max(v[1][1]).max(v[2][1]));
+    let (minx, maxx) = (
+        v[0][0].min(v[1][0]).min(v[2][0]),
+        v[0][0].max(v[1][0]).max(v[2][0]),
+    );
+    let (miny, maxy) = (
+        v[0][1].min(v[1][1]).min(v[2][1]),
+        v[0][1].max(v[1][1]).max(v[2][1]),
+    );
     // Pixel px's centre is px * ONE + HALF; keep the pixels whose centre is in the box.
     let first = |lo: i64| -((HALF - lo).div_euclid(ONE));
     let last = |hi: i64| (hi - HALF).div_euclid(ONE);
@@ -529,14 +629,21 @@ fn draw_depth(t: &SetupTri, band: &mut Band, w: usize) {
     for_each_inside(t, y0, band.y1, |px, py, e| {
         // Perspective-correct weights, not yet normalised: w_k = e_k * kz_k, and their sum is
         // 1/depth. The test compares 1/depth (nearer = larger), which needs no division.
-        let wgt = [e[0] as f64 * t.kz[0], e[1] as f64 * t.kz[1], e[2] as f64 * t.kz[2]];
+        let wgt = [
+            e[0] as f64 * t.kz[0],
+            e[1] as f64 * t.kz[1],
+            e[2] as f64 * t.kz[2],
+        ];
         let inv_depth = (wgt[0] + wgt[1] + wgt[2]) as f32;
         let i = (py - y0) * w + px;
         if inv_depth > depth[i] {
             depth[i] = inv_depth;
             let (s0, s1, s2) = (wgt[0] as f32, wgt[1] as f32, wgt[2] as f32);
             let b = &t.bary;
-            uv[i] = [s0 * b[0][1] + s1 * b[1][1] + s2 * b[2][1], s0 * b[0][2] + s1 * b[1][2] + s2 * b[2][2]];
+            uv[i] = [
+                s0 * b[0][1] + s1 * b[1][1] + s2 * b[2][1],
+                s0 * b[0][2] + s1 * b[1][2] + s2 * b[2][2],
+            ];
             prim[i] = t.prim;
             tri[i] = t.tri;
         }
@@ -561,7 +668,11 @@ fn resolve(scene: &Scene, prims: &[PrimInfo], band: &mut Band) {
         let p = &scene.primitives[pi as usize];
         let info = &prims[pi as usize];
         let t = band.tri[i] as usize;
-        let ix = [p.indices[3 * t] as usize, p.indices[3 * t + 1] as usize, p.indices[3 * t + 2] as usize];
+        let ix = [
+            p.indices[3 * t] as usize,
+            p.indices[3 * t + 1] as usize,
+            p.indices[3 * t + 2] as usize,
+        ];
         let [b1, b2] = band.uv[i].map(|b| b / inv_depth);
         band.uv[i] = if info.has_uvs {
             let (u0, u1, u2) = (p.uvs[ix[0]], p.uvs[ix[1]], p.uvs[ix[2]]);
@@ -588,7 +699,16 @@ mod tests {
 
     #[test]
     fn top_left_picks_one_direction() {
-        let dirs = [[1, 0], [0, 1], [-1, 0], [0, -1], [3, 7], [-3, 7], [3, -7], [-3, -7]];
+        let dirs = [
+            [1, 0],
+            [0, 1],
+            [-1, 0],
+            [0, -1],
+            [3, 7],
+            [-3, 7],
+            [3, -7],
+            [-3, -7],
+        ];
         for d in dirs {
             let a = [0, 0];
             assert_ne!(is_top_left(a, d), is_top_left(a, [-d[0], -d[1]]), "{d:?}");
@@ -597,8 +717,14 @@ mod tests {
 
     #[test]
     fn intersect_is_symmetric() {
-        let a = ClipVert { p: DVec3::new(0.3, -1.7, 0.25), b: DVec3::X };
-        let b = ClipVert { p: DVec3::new(-2.1, 0.9, -3.5), b: DVec3::Y };
+        let a = ClipVert {
+            p: DVec3::new(0.3, -1.7, 0.25),
+            b: DVec3::X,
+        };
+        let b = ClipVert {
+            p: DVec3::new(-2.1, 0.9, -3.5),
+            b: DVec3::Y,
+        };
         let pl = DVec4::new(0.0, 0.0, -1.0, -0.001);
         let (da, db) = (dist(&pl, a.p), dist(&pl, b.p));
         assert_eq!(intersect(a, b, da, db).p, intersect(b, a, db, da).p);
@@ -616,4 +742,3 @@ mod tests {
         assert_eq!(first(-5 * ONE), -5);
     }
 }
-

@@ -24,10 +24,13 @@ pub struct Primitive {
     pub indices: Vec<u32>,
     /// Local-to-world matrix of the node instancing this primitive.
     pub world: Mat4,
-    /// glTF material index, if any (selects the neural texture and renderer).
+    /// glTF material index, if any (the core material: for a primitive with `neural`, its
+    /// fallback).
     pub material: Option<u32>,
-    /// Which `TEXCOORD_n` set `uvs` was read from (the material's
-    /// `EXT_deferred_neural_rendering.texCoord`, default 0).
+    /// `(neuralTexture, renderer)` of the primitive's `EXT_deferred_neural_rendering`
+    /// binding, None for a primitive without the extension.
+    pub neural: Option<(u32, u32)>,
+    /// Which `TEXCOORD_n` set `uvs` was read from (the binding's `texCoord`, default 0).
     pub tex_coord: u32,
     /// glTF node that instances the primitive (None when built by hand).
     pub node: Option<u32>,
@@ -120,7 +123,9 @@ pub enum SceneError {
         /// What is wrong.
         reason: String,
     },
-    /// A material's `EXT_deferred_neural_rendering` object is malformed.
+    /// Not produced any more: the `EXT_deferred_neural_rendering` binding moved from
+    /// materials to mesh primitives, and a malformed binding is a [`SceneError::Primitive`].
+    /// Kept so that code matching on it still compiles.
     #[error("materials[{material}].extensions.EXT_deferred_neural_rendering: {reason}")]
     Material {
         /// Material index.
@@ -183,12 +188,22 @@ fn load(bytes: &[u8], base: Option<&Path>) -> Result<Scene, SceneError> {
     };
 
     // Geometry is decoded once per glTF primitive and shared by every instance.
-    let mut decoded: Vec<Vec<Option<Decoded>>> = doc.meshes().map(|m| vec![None; m.primitives().len()]).collect();
+    let mut decoded: Vec<Vec<Option<Decoded>>> = doc
+        .meshes()
+        .map(|m| vec![None; m.primitives().len()])
+        .collect();
 
     let mut scene = Scene::default();
     let mut on_path = vec![false; doc.nodes().len()];
     for root in roots {
-        walk(root, Mat4::IDENTITY, &mut on_path, &buffers, &mut decoded, &mut scene)?;
+        walk(
+            root,
+            Mat4::IDENTITY,
+            &mut on_path,
+            &buffers,
+            &mut decoded,
+            &mut scene,
+        )?;
     }
     Ok(scene)
 }
@@ -202,11 +217,18 @@ fn resolve_buffers(
     for buffer in doc.buffers() {
         let index = buffer.index();
         let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
-            .map_err(|e| SceneError::Buffer { index, reason: e.to_string() })?;
+            .map_err(|e| SceneError::Buffer {
+                index,
+                reason: e.to_string(),
+            })?;
         if data.len() < buffer.length() {
             return Err(SceneError::Buffer {
                 index,
-                reason: format!("declares {} bytes but only {} are present", buffer.length(), data.len()),
+                reason: format!(
+                    "declares {} bytes but only {} are present",
+                    buffer.length(),
+                    data.len()
+                ),
             });
         }
         out.push(data);
@@ -220,6 +242,7 @@ struct Decoded {
     positions: Vec<Vec3>,
     uvs: Vec<Vec2>,
     indices: Vec<u32>,
+    neural: Option<(u32, u32)>,
     tex_coord: u32,
 }
 
@@ -233,11 +256,17 @@ fn walk(
 ) -> Result<(), SceneError> {
     let ni = node.index();
     if on_path[ni] {
-        return Err(SceneError::Node { node: ni, reason: "the node is its own ancestor (cycle in children)".into() });
+        return Err(SceneError::Node {
+            node: ni,
+            reason: "the node is its own ancestor (cycle in children)".into(),
+        });
     }
     let local = Mat4::from_cols_array_2d(&node.transform().matrix());
     if !local.is_finite() {
-        return Err(SceneError::Node { node: ni, reason: "transform is not finite".into() });
+        return Err(SceneError::Node {
+            node: ni,
+            reason: "transform is not finite".into(),
+        });
     }
     let world = parent * local;
     if let Some(mesh) = node.mesh() {
@@ -249,10 +278,13 @@ fn walk(
                     positions: Vec::new(),
                     uvs: Vec::new(),
                     indices: Vec::new(),
+                    neural: None,
                     tex_coord: 0,
                 }));
             }
-            let Some(d) = decoded[mi][pi].as_ref() else { continue };
+            let Some(d) = decoded[mi][pi].as_ref() else {
+                continue;
+            };
             if d.indices.is_empty() {
                 continue; // points, lines or no POSITION: nothing to rasterise
             }
@@ -265,6 +297,7 @@ fn walk(
                 indices: d.indices.clone(),
                 world,
                 material: prim.material().index().and_then(|m| u32::try_from(m).ok()),
+                neural: d.neural,
                 tex_coord: d.tex_coord,
                 node: u32::try_from(ni).ok(),
                 source: u32::try_from(mi).ok().zip(u32::try_from(pi).ok()),
@@ -279,19 +312,34 @@ fn walk(
     Ok(())
 }
 
-/// The UV set a material asks for: `extensions.EXT_deferred_neural_rendering.texCoord`.
-fn material_tex_coord(material: &gltf::Material) -> Result<u32, SceneError> {
-    let Some(index) = material.index() else { return Ok(0) };
-    let Some(ext) = material.extension_value(dnr_format::EXTENSION_NAME) else { return Ok(0) };
-    let bad = |reason: &str| SceneError::Material { material: index, reason: reason.into() };
+/// A primitive's `extensions.EXT_deferred_neural_rendering` binding:
+/// `(Some((neuralTexture, renderer)), texCoord)`, or `(None, 0)` without the extension.
+fn primitive_binding(
+    prim: &gltf::Primitive,
+    mesh: usize,
+) -> Result<(Option<(u32, u32)>, u32), SceneError> {
+    let Some(ext) = prim.extension_value(dnr_format::EXTENSION_NAME) else {
+        return Ok((None, 0));
+    };
+    let bad = |reason: &str| SceneError::Primitive {
+        mesh,
+        primitive: prim.index(),
+        reason: format!("extensions.{}: {reason}", dnr_format::EXTENSION_NAME),
+    };
     let obj = ext.as_object().ok_or_else(|| bad("must be an object"))?;
-    match obj.get("texCoord") {
-        None => Ok(0),
-        Some(v) => v
-            .as_u64()
+    let index = |key: &str| {
+        obj.get(key)
+            .and_then(|v| v.as_u64())
             .and_then(|n| u32::try_from(n).ok())
-            .ok_or_else(|| bad("texCoord must be a non-negative integer")),
-    }
+            .ok_or_else(|| bad(&format!("{key} must be a non-negative integer")))
+    };
+    let tex_coord = if obj.contains_key("texCoord") {
+        index("texCoord")?
+    } else {
+        0
+    };
+    let neural = (index("neuralTexture")?, index("renderer")?);
+    Ok((Some(neural), tex_coord))
 }
 
 /// Decodes one primitive; Ok(None) when it has nothing to rasterise.
@@ -301,22 +349,31 @@ fn decode_primitive(
     buffers: &[&[u8]],
 ) -> Result<Option<Decoded>, SceneError> {
     let primitive = prim.index();
-    let perr = |reason: String| SceneError::Primitive { mesh, primitive, reason };
+    let perr = |reason: String| SceneError::Primitive {
+        mesh,
+        primitive,
+        reason,
+    };
     match prim.mode() {
         Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan => {}
         Mode::Points | Mode::Lines | Mode::LineLoop | Mode::LineStrip => return Ok(None),
     }
     // glTF: "When positions are not specified, client implementations SHOULD skip
     // primitive's rendering".
-    let Some(pos_acc) = prim.get(&Semantic::Positions) else { return Ok(None) };
+    let Some(pos_acc) = prim.get(&Semantic::Positions) else {
+        return Ok(None);
+    };
     if pos_acc.dimensions() != Dimensions::Vec3 {
         return Err(acc_err(&pos_acc, "POSITION", "must be VEC3"));
     }
     let flat = read_accessor(&pos_acc, "POSITION", buffers)?;
-    let positions: Vec<Vec3> = flat.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2])).collect();
+    let positions: Vec<Vec3> = flat
+        .chunks_exact(3)
+        .map(|c| Vec3::new(c[0], c[1], c[2]))
+        .collect();
     let n = positions.len();
 
-    let tex_coord = material_tex_coord(&prim.material())?;
+    let (neural, tex_coord) = primitive_binding(prim, mesh)?;
     let uvs = match prim.get(&Semantic::TexCoords(tex_coord)) {
         None => Vec::new(),
         Some(acc) => {
@@ -326,18 +383,30 @@ fn decode_primitive(
             }
             let flat = read_accessor(&acc, &what, buffers)?;
             if flat.len() / 2 != n {
-                return Err(perr(format!("{what} has {} elements but POSITION has {n}", flat.len() / 2)));
+                return Err(perr(format!(
+                    "{what} has {} elements but POSITION has {n}",
+                    flat.len() / 2
+                )));
             }
-            flat.chunks_exact(2).map(|c| Vec2::new(c[0], c[1])).collect()
+            flat.chunks_exact(2)
+                .map(|c| Vec2::new(c[0], c[1]))
+                .collect()
         }
     };
 
     let list: Vec<u32> = match prim.indices() {
         Some(acc) => {
             if acc.dimensions() != Dimensions::Scalar
-                || !matches!(acc.data_type(), DataType::U8 | DataType::U16 | DataType::U32)
+                || !matches!(
+                    acc.data_type(),
+                    DataType::U8 | DataType::U16 | DataType::U32
+                )
             {
-                return Err(acc_err(&acc, "indices", "must be SCALAR unsigned byte, short or int"));
+                return Err(acc_err(
+                    &acc,
+                    "indices",
+                    "must be SCALAR unsigned byte, short or int",
+                ));
             }
             let idx = read_indices(&acc, buffers)?;
             if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
@@ -360,7 +429,13 @@ fn decode_primitive(
             l
         }
     };
-    Ok(Some(Decoded { positions, uvs, indices, tex_coord }))
+    Ok(Some(Decoded {
+        positions,
+        uvs,
+        indices,
+        neural,
+        tex_coord,
+    }))
 }
 
 /// glTF 2.0 §3.7.2.1: strip triangle i is (v_i, v_{i+1+i%2}, v_{i+2-i%2}).
@@ -383,7 +458,11 @@ fn fan_to_list(s: &[u32]) -> Vec<u32> {
 }
 
 fn acc_err(acc: &gltf::Accessor, what: &str, reason: &str) -> SceneError {
-    SceneError::Accessor { index: acc.index(), what: what.into(), reason: reason.into() }
+    SceneError::Accessor {
+        index: acc.index(),
+        what: what.into(),
+        reason: reason.into(),
+    }
 }
 
 /// Bytes of a buffer view, checked against the buffer.
@@ -399,17 +478,32 @@ fn view_bytes<'b>(
     view.offset()
         .checked_add(view.length())
         .and_then(|end| buf.get(view.offset()..end))
-        .ok_or_else(|| acc_err(acc, what, &format!("bufferViews[{}] lies outside its buffer", view.index())))
+        .ok_or_else(|| {
+            acc_err(
+                acc,
+                what,
+                &format!("bufferViews[{}] lies outside its buffer", view.index()),
+            )
+        })
 }
 
 /// A strided run of `count` elements of `elem` bytes starting at `offset` within `bytes`,
 /// checked: returns the stride.
-fn check_run(bytes: &[u8], offset: usize, count: usize, elem: usize, stride: Option<usize>) -> Option<usize> {
+fn check_run(
+    bytes: &[u8],
+    offset: usize,
+    count: usize,
+    elem: usize,
+    stride: Option<usize>,
+) -> Option<usize> {
     let stride = stride.unwrap_or(elem);
     if stride < elem || count == 0 {
         return None;
     }
-    let end = (count - 1).checked_mul(stride)?.checked_add(elem)?.checked_add(offset)?;
+    let end = (count - 1)
+        .checked_mul(stride)?
+        .checked_add(elem)?
+        .checked_add(offset)?;
     (end <= bytes.len()).then_some(stride)
 }
 
@@ -419,19 +513,35 @@ fn read_component(b: &[u8], ty: DataType, normalized: bool) -> f32 {
         DataType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
         DataType::U8 => {
             let c = b[0] as f32;
-            if normalized { c / 255.0 } else { c }
+            if normalized {
+                c / 255.0
+            } else {
+                c
+            }
         }
         DataType::I8 => {
             let c = b[0] as i8 as f32;
-            if normalized { (c / 127.0).max(-1.0) } else { c }
+            if normalized {
+                (c / 127.0).max(-1.0)
+            } else {
+                c
+            }
         }
         DataType::U16 => {
             let c = u16::from_le_bytes([b[0], b[1]]) as f32;
-            if normalized { c / 65535.0 } else { c }
+            if normalized {
+                c / 65535.0
+            } else {
+                c
+            }
         }
         DataType::I16 => {
             let c = i16::from_le_bytes([b[0], b[1]]) as f32;
-            if normalized { (c / 32767.0).max(-1.0) } else { c }
+            if normalized {
+                (c / 32767.0).max(-1.0)
+            } else {
+                c
+            }
         }
         DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
     }
@@ -439,7 +549,11 @@ fn read_component(b: &[u8], ty: DataType, normalized: bool) -> f32 {
 
 /// Reads a float-valued accessor (any component type, normalised as declared), sparse
 /// substitution included, into a flat `count * components` vector.
-fn read_accessor(acc: &gltf::Accessor, what: &str, buffers: &[&[u8]]) -> Result<Vec<f32>, SceneError> {
+fn read_accessor(
+    acc: &gltf::Accessor,
+    what: &str,
+    buffers: &[&[u8]],
+) -> Result<Vec<f32>, SceneError> {
     let comps = acc.dimensions().multiplicity();
     let ty = acc.data_type();
     let csize = ty.size();
@@ -471,7 +585,11 @@ fn read_accessor(acc: &gltf::Accessor, what: &str, buffers: &[&[u8]]) -> Result<
         for (j, &i) in idx.iter().enumerate() {
             let i = i as usize;
             if i >= count {
-                return Err(acc_err(acc, what, &format!("sparse index {i} out of range")));
+                return Err(acc_err(
+                    acc,
+                    what,
+                    &format!("sparse index {i} out of range"),
+                ));
             }
             let base = values.offset() + j * elem;
             for k in 0..comps {

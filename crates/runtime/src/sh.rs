@@ -109,13 +109,24 @@ pub fn check_modulate(
     if degree > MAX_DEGREE {
         return Err(ShError::Degree(degree));
     }
-    if view_dirs != pixels || (pixels == 0 && features != 0) || (pixels != 0 && features % pixels != 0) {
-        return Err(ShError::Shape { features, pixels, view_dirs });
+    if view_dirs != pixels
+        || (pixels == 0 && features != 0)
+        || (pixels != 0 && features % pixels != 0)
+    {
+        return Err(ShError::Shape {
+            features,
+            pixels,
+            view_dirs,
+        });
     }
-    let channels = if pixels == 0 { 0 } else { features / pixels };
+    let channels = features.checked_div(pixels).unwrap_or(0);
     let end = first_channel.saturating_add(coeff_count(degree));
     if end > channels {
-        return Err(ShError::Channels { first: first_channel, end, channels });
+        return Err(ShError::Channels {
+            first: first_channel,
+            end,
+            channels,
+        });
     }
     Ok(channels)
 }
@@ -135,7 +146,13 @@ pub fn modulate(
     degree: u32,
 ) -> Result<(), ShError> {
     let pixels = coverage.len();
-    check_modulate(features.len(), view_dir.len(), pixels, first_channel, degree)?;
+    check_modulate(
+        features.len(),
+        view_dir.len(),
+        pixels,
+        first_channel,
+        degree,
+    )?;
     if pixels == 0 {
         return Ok(());
     }

@@ -47,9 +47,38 @@ impl Wrap {
         }
     }
 
+    /// [`Wrap::pair`] for an integer `i0` (and `n >= 1`).
+    #[inline(always)]
+    fn pair_i64(self, i0: i64, n: i64) -> (usize, usize) {
+        match self {
+            Wrap::Repeat => {
+                let m = if (0..n).contains(&i0) {
+                    i0
+                } else {
+                    i0.rem_euclid(n)
+                };
+                (m as usize, if m + 1 == n { 0 } else { m as usize + 1 })
+            }
+            Wrap::ClampToEdge => (
+                i0.clamp(0, n - 1) as usize,
+                (i0 + 1).clamp(0, n - 1) as usize,
+            ),
+            Wrap::MirroredRepeat => {
+                let m = if (0..2 * n).contains(&i0) {
+                    i0
+                } else {
+                    i0.rem_euclid(2 * n)
+                };
+                let m1 = if m + 1 == 2 * n { 0 } else { m + 1 };
+                let mirror = |m: i64| (if m < n { m } else { 2 * n - 1 - m }) as usize;
+                (mirror(m), mirror(m1))
+            }
+        }
+    }
+
     /// Wrapped indices of the integer-valued `i0` and of `i0 + 1` for an axis of `n >= 1`
     /// texels. `i0` may be any finite integer-valued f64.
-    #[inline]
+    #[inline(always)]
     pub fn pair(self, i0: f64, n: usize) -> (usize, usize) {
         let nf = n as f64;
         match self {
@@ -60,7 +89,10 @@ impl Wrap {
             }
             Wrap::ClampToEdge => {
                 let hi = nf - 1.0;
-                (i0.clamp(0.0, hi) as usize, (i0 + 1.0).clamp(0.0, hi) as usize)
+                (
+                    i0.clamp(0.0, hi) as usize,
+                    (i0 + 1.0).clamp(0.0, hi) as usize,
+                )
             }
             Wrap::MirroredRepeat => {
                 let m = rem_euclid(i0, 2.0 * nf);
@@ -93,6 +125,25 @@ fn rem_euclid(i: f64, n: f64) -> usize {
     (r as usize).min(n as usize - 1)
 }
 
+/// Wrapped tap indices `wrap(floor(x))`, `wrap(floor(x) + 1)` and the fraction
+/// `x - floor(x)` for one axis of `n >= 1` texels; x finite.
+///
+/// Where |x| < 4e15 the floor goes through i64 (exact there), which also avoids the libm
+/// `floor` call baseline x86-64 (no SSE4.1) makes; beyond, every f64 is an integer and the
+/// exact f64 path of [`Wrap::pair`] takes over.
+#[inline(always)]
+fn axis(x: f64, n: usize, wrap: Wrap) -> (usize, usize, f32) {
+    if x.abs() < 4.0e15 {
+        let t = x as i64;
+        let i0 = if t as f64 > x { t - 1 } else { t };
+        let (a, b) = wrap.pair_i64(i0, n as i64);
+        (a, b, (x - i0 as f64) as f32)
+    } else {
+        let (a, b) = wrap.pair(x, n);
+        (a, b, 0.0)
+    }
+}
+
 /// One bilinear tap: texel index within its level (`y * width + x`) and weight.
 pub type Tap = (usize, f32);
 
@@ -101,16 +152,19 @@ pub type Tap = (usize, f32);
 /// `(1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy`. None when u or v is not finite or the level
 /// is empty. Wrapped taps may coincide (clamping, width 1); their weights then add up.
 #[inline]
-pub fn taps(width: usize, height: usize, wrap_s: Wrap, wrap_t: Wrap, u: f32, v: f32) -> Option<[Tap; 4]> {
+pub fn taps(
+    width: usize,
+    height: usize,
+    wrap_s: Wrap,
+    wrap_t: Wrap,
+    u: f32,
+    v: f32,
+) -> Option<[Tap; 4]> {
     if !(u.is_finite() && v.is_finite()) || width == 0 || height == 0 {
         return None;
     }
-    let x = u as f64 * width as f64 - 0.5;
-    let y = v as f64 * height as f64 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-    let (xa, xb) = wrap_s.pair(x0, width);
-    let (ya, yb) = wrap_t.pair(y0, height);
+    let (xa, xb, fx) = axis(u as f64 * width as f64 - 0.5, width, wrap_s);
+    let (ya, yb, fy) = axis(v as f64 * height as f64 - 0.5, height, wrap_t);
     Some([
         (ya * width + xa, (1.0 - fx) * (1.0 - fy)),
         (ya * width + xb, fx * (1.0 - fy)),
@@ -179,8 +233,18 @@ pub enum TextureError {
 
 impl Pyramid {
     /// A checked pyramid.
-    pub fn new(channels: usize, levels: Vec<Level>, wrap_s: Wrap, wrap_t: Wrap) -> Result<Self, TextureError> {
-        let p = Pyramid { channels, levels, wrap_s, wrap_t };
+    pub fn new(
+        channels: usize,
+        levels: Vec<Level>,
+        wrap_s: Wrap,
+        wrap_t: Wrap,
+    ) -> Result<Self, TextureError> {
+        let p = Pyramid {
+            channels,
+            levels,
+            wrap_s,
+            wrap_t,
+        };
         p.validate()?;
         Ok(p)
     }
@@ -191,7 +255,10 @@ impl Pyramid {
             return Err(TextureError::Empty);
         }
         for (i, l) in self.levels.iter().enumerate() {
-            let expected = l.width.checked_mul(l.height).and_then(|n| n.checked_mul(self.channels));
+            let expected = l
+                .width
+                .checked_mul(l.height)
+                .and_then(|n| n.checked_mul(self.channels));
             if l.width == 0 || l.height == 0 || expected != Some(l.data.len()) {
                 return Err(TextureError::LevelSize {
                     level: i,
@@ -213,7 +280,9 @@ impl Pyramid {
         let c = self.channels;
         let out = &mut out[..c];
         for l in &self.levels {
-            let Some(tp) = taps(l.width, l.height, self.wrap_s, self.wrap_t, u, v) else { return };
+            let Some(tp) = taps(l.width, l.height, self.wrap_s, self.wrap_t, u, v) else {
+                return;
+            };
             for (t, w) in tp {
                 let texel = &l.data[t * c..t * c + c];
                 for (o, &x) in out.iter_mut().zip(texel) {
@@ -232,22 +301,31 @@ pub fn sample_into(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(),
     let (w, h, c) = (gbuf.width, gbuf.height, pyr.channels);
     let expected = c * w * h;
     if out.len() != expected || !gbuf.is_consistent() {
-        return Err(TextureError::OutputSize { expected, found: out.len() });
+        return Err(TextureError::OutputSize {
+            expected,
+            found: out.len(),
+        });
     }
     if expected == 0 {
         return Ok(());
     }
     for_rows_of_planes(out, c, w, h, |y, planes| {
-        let mut acc = vec![0.0f32; c];
-        for x in 0..w {
-            let i = y * w + x;
-            let [u, v] = gbuf.uv[i];
-            acc.fill(0.0);
-            if gbuf.coverage[i] != 0.0 {
-                pyr.accumulate(u, v, &mut acc);
+        // Accumulate the row texel-interleaved (each tap adds C contiguous values), then
+        // transpose into the planes.
+        let mut acc = vec![0.0f32; w * c];
+        let row = y * w..(y + 1) * w;
+        for (x, (&[u, v], &cov)) in gbuf.uv[row.clone()]
+            .iter()
+            .zip(&gbuf.coverage[row])
+            .enumerate()
+        {
+            if cov != 0.0 {
+                pyr.accumulate(u, v, &mut acc[x * c..(x + 1) * c]);
             }
-            for (plane, &a) in planes.iter_mut().zip(&acc) {
-                plane[x] = a;
+        }
+        for (ch, plane) in planes.iter_mut().enumerate() {
+            for (p, a) in plane.iter_mut().zip(acc.iter().skip(ch).step_by(c)) {
+                *p = *a;
             }
         }
     });
@@ -270,5 +348,7 @@ where
             rows[y].push(row);
         }
     }
-    rows.into_par_iter().enumerate().for_each(|(y, mut r)| f(y, &mut r));
+    rows.into_par_iter()
+        .enumerate()
+        .for_each(|(y, mut r)| f(y, &mut r));
 }

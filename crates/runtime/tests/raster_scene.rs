@@ -1,6 +1,9 @@
 //! glTF geometry loading for the rasteriser: node transforms, primitive modes, UV set
 //! selection, embedded and external buffers, and errors (never panics) on broken files.
 
+// Index loops mirror the math (pixel i, channel c) and compare several arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use std::path::Path;
 
 use dnr_runtime::camera::Camera;
@@ -22,7 +25,9 @@ fn payload() -> Vec<u8> {
     b
 }
 
-const CHILD_MATRIX: [f32; 16] = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.5, 0.0, -2.0, 1.0];
+const CHILD_MATRIX: [f32; 16] = [
+    1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.5, 0.0, -2.0, 1.0,
+];
 
 /// glTF JSON over `payload()`; `buffer` is the buffer object's JSON, `tweak` edits the
 /// rest (a replacement applied to the final text).
@@ -93,7 +98,9 @@ fn base64(data: &[u8]) -> String {
     const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut s = String::new();
     for c in data.chunks(3) {
-        let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
         for k in 0..4 {
             if k <= c.len() {
                 s.push(T[(n >> (18 - 6 * k) & 63) as usize] as char);
@@ -123,11 +130,23 @@ fn check_scene(s: &dnr_runtime::scene::Scene) {
     // default scene are not.
     assert_eq!(s.primitives.len(), 2);
     let strip = &s.primitives[0];
-    assert!(strip.world.abs_diff_eq(expected_world(), 1e-6), "{:?}", strip.world);
+    assert!(
+        strip.world.abs_diff_eq(expected_world(), 1e-6),
+        "{:?}",
+        strip.world
+    );
     // glTF strip triangle i is (v_i, v_{i+1+i%2}, v_{i+2-i%2}).
     assert_eq!(strip.indices, vec![0, 1, 2, 1, 3, 2]);
     assert_eq!(strip.tex_coord, 1);
-    assert_eq!(strip.uvs, vec![Vec2::new(0.5, 0.5), Vec2::new(0.75, 0.5), Vec2::new(0.5, 0.75), Vec2::new(0.75, 0.75)]);
+    assert_eq!(
+        strip.uvs,
+        vec![
+            Vec2::new(0.5, 0.5),
+            Vec2::new(0.75, 0.5),
+            Vec2::new(0.5, 0.75),
+            Vec2::new(0.75, 0.75)
+        ]
+    );
     assert_eq!(strip.material, Some(0));
     assert_eq!(strip.node, Some(1));
     assert_eq!(strip.source, Some((0, 0)));
@@ -148,7 +167,10 @@ fn glb_node_transforms_modes_and_uv_set() {
 
 #[test]
 fn gltf_with_data_uri_buffer() {
-    let buffer = format!(r#"{{"byteLength": 120, "uri": "data:application/octet-stream;base64,{}"}}"#, base64(&payload()));
+    let buffer = format!(
+        r#"{{"byteLength": 120, "uri": "data:application/octet-stream;base64,{}"}}"#,
+        base64(&payload())
+    );
     let s = from_gltf_slice(json(&buffer, ("", "")).as_bytes()).unwrap();
     check_scene(&s);
 }
@@ -166,7 +188,10 @@ fn gltf_with_external_buffer_from_a_file() {
     let missing = load_gltf(&dir.join("nope.gltf"));
     std::fs::remove_dir_all(&dir).unwrap();
     check_scene(&s.unwrap());
-    assert!(matches!(from_slice, Err(SceneError::Buffer { index: 0, .. })), "{from_slice:?}");
+    assert!(
+        matches!(from_slice, Err(SceneError::Buffer { index: 0, .. })),
+        "{from_slice:?}"
+    );
     assert!(matches!(missing, Err(SceneError::Io { .. })));
 }
 
@@ -180,7 +205,11 @@ fn transformed_scene_renders_where_the_transform_puts_it() {
     let g = rasterize(&s, &cam);
     let mid = 16 * 32 + 16;
     assert_eq!(g.coverage[mid], 1.0);
-    assert!((g.uv[mid][0] - 0.625).abs() < 0.02 && (g.uv[mid][1] - 0.625).abs() < 0.02, "{:?}", g.uv[mid]);
+    assert!(
+        (g.uv[mid][0] - 0.625).abs() < 0.02 && (g.uv[mid][1] - 0.625).abs() < 0.02,
+        "{:?}",
+        g.uv[mid]
+    );
 }
 
 #[test]
@@ -190,32 +219,84 @@ fn broken_files_are_errors_naming_the_problem() {
     let mut bin = payload();
     bin[112..114].copy_from_slice(&9u16.to_le_bytes());
     let e = from_gltf_slice(&glb(&ok, &bin)).unwrap_err();
-    assert!(matches!(e, SceneError::Primitive { mesh: 0, primitive: 0, .. }) && e.to_string().contains("out of range"), "{e}");
+    assert!(
+        matches!(
+            e,
+            SceneError::Primitive {
+                mesh: 0,
+                primitive: 0,
+                ..
+            }
+        ) && e.to_string().contains("out of range"),
+        "{e}"
+    );
     // Accessor larger than its view.
-    let big = json(glb_buffer(), (r#""count": 4, "type": "SCALAR""#, r#""count": 40, "type": "SCALAR""#));
+    let big = json(
+        glb_buffer(),
+        (
+            r#""count": 4, "type": "SCALAR""#,
+            r#""count": 40, "type": "SCALAR""#,
+        ),
+    );
     let e = from_gltf_slice(&glb(&big, &payload())).unwrap_err();
-    assert!(matches!(e, SceneError::Accessor { index: 3, .. } | SceneError::Gltf(_)), "{e}");
+    assert!(
+        matches!(
+            e,
+            SceneError::Accessor { index: 3, .. } | SceneError::Gltf(_)
+        ),
+        "{e}"
+    );
     // View beyond the buffer.
-    let past = json(glb_buffer(), (r#""byteOffset": 112, "byteLength": 8"#, r#""byteOffset": 112, "byteLength": 800"#));
+    let past = json(
+        glb_buffer(),
+        (
+            r#""byteOffset": 112, "byteLength": 8"#,
+            r#""byteOffset": 112, "byteLength": 800"#,
+        ),
+    );
     assert!(from_gltf_slice(&glb(&past, &payload())).is_err());
     // Huge count (overflow in size arithmetic).
-    let huge = json(glb_buffer(), (r#""count": 4, "type": "VEC2"},"#, r#""count": 4611686018427387904, "type": "VEC2"},"#));
+    let huge = json(
+        glb_buffer(),
+        (
+            r#""count": 4, "type": "VEC2"},"#,
+            r#""count": 4611686018427387904, "type": "VEC2"},"#,
+        ),
+    );
     assert!(from_gltf_slice(&glb(&huge, &payload())).is_err());
     // Malformed texCoord.
     let bad_tc = json(glb_buffer(), (r#""texCoord": 1"#, r#""texCoord": "one""#));
     let e = from_gltf_slice(&glb(&bad_tc, &payload())).unwrap_err();
     assert!(matches!(e, SceneError::Material { material: 0, .. }), "{e}");
     // Wrong POSITION type.
-    let vec2 = json(glb_buffer(), (r#""count": 4, "type": "VEC3""#, r#""count": 4, "type": "VEC2""#));
+    let vec2 = json(
+        glb_buffer(),
+        (
+            r#""count": 4, "type": "VEC3""#,
+            r#""count": 4, "type": "VEC2""#,
+        ),
+    );
     assert!(from_gltf_slice(&glb(&vec2, &payload())).is_err());
     // Cycle in the node graph.
-    let cyc = json(glb_buffer(), (r#"{"matrix""#, r#"{"children": [0], "matrix""#));
+    let cyc = json(
+        glb_buffer(),
+        (r#"{"matrix""#, r#"{"children": [0], "matrix""#),
+    );
     let e = from_gltf_slice(&glb(&cyc, &payload())).unwrap_err();
-    assert!(matches!(e, SceneError::Node { .. } | SceneError::Gltf(_)), "{e}");
+    assert!(
+        matches!(e, SceneError::Node { .. } | SceneError::Gltf(_)),
+        "{e}"
+    );
     // BIN chunk shorter than the buffer.
-    assert!(matches!(from_gltf_slice(&glb(&ok, &payload()[..100])), Err(SceneError::Buffer { index: 0, .. })));
+    assert!(matches!(
+        from_gltf_slice(&glb(&ok, &payload()[..100])),
+        Err(SceneError::Buffer { index: 0, .. })
+    ));
     // Not glTF at all.
-    assert!(matches!(from_gltf_slice(b"hello"), Err(SceneError::Gltf(_))));
+    assert!(matches!(
+        from_gltf_slice(b"hello"),
+        Err(SceneError::Gltf(_))
+    ));
 }
 
 #[test]
@@ -229,7 +310,10 @@ fn every_truncated_prefix_fails_without_panicking() {
 
 #[test]
 fn texcoord_set_missing_keeps_the_primitive_without_uvs() {
-    let no_tc1 = json(glb_buffer(), (r#", "TEXCOORD_1": 2}, "indices""#, r#"}, "indices""#));
+    let no_tc1 = json(
+        glb_buffer(),
+        (r#", "TEXCOORD_1": 2}, "indices""#, r#"}, "indices""#),
+    );
     let s = from_gltf_slice(&glb(&no_tc1, &payload())).unwrap();
     assert_eq!(s.primitives[0].tex_coord, 1);
     assert!(s.primitives[0].uvs.is_empty());

@@ -1,6 +1,9 @@
 //! Spherical harmonics: the basis against DESIGN.md's table (written out again here in
 //! f64), orthonormality by Monte Carlo, and `modulate`'s channel/pixel selection and errors.
 
+// Index loops mirror the math (pixel i, channel c) and compare several arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use dnr_runtime::sh::{check_modulate, coeff_count, modulate, sh_basis, sh_component, ShError};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -30,7 +33,11 @@ fn table(d: [f64; 3]) -> [f64; 16] {
 
 fn random_dir(rng: &mut ChaCha8Rng) -> [f32; 3] {
     loop {
-        let v: [f32; 3] = [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)];
+        let v: [f32; 3] = [
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        ];
         let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         if n > 0.1 && n <= 1.0 {
             return v.map(|c| c / n);
@@ -41,9 +48,18 @@ fn random_dir(rng: &mut ChaCha8Rng) -> [f32; 3] {
 #[test]
 fn basis_matches_the_design_table() {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let axes = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]];
+    let axes = [
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
+    ];
     for k in 0..500 {
-        let d = if k < axes.len() { axes[k] } else { random_dir(&mut rng) };
+        let d = if k < axes.len() {
+            axes[k]
+        } else {
+            random_dir(&mut rng)
+        };
         let want = table(d.map(|c| c as f64));
         for degree in 0..=3u32 {
             let mut out = [f32::NAN; 16];
@@ -51,7 +67,12 @@ fn basis_matches_the_design_table() {
             assert_eq!(n, coeff_count(degree));
             for j in 0..16 {
                 if j < n {
-                    assert!((out[j] as f64 - want[j]).abs() < 1e-6, "degree {degree} j {j} d {d:?}: {} vs {}", out[j], want[j]);
+                    assert!(
+                        (out[j] as f64 - want[j]).abs() < 1e-6,
+                        "degree {degree} j {j} d {d:?}: {} vs {}",
+                        out[j],
+                        want[j]
+                    );
                     assert_eq!(out[j], sh_component(j, d));
                 } else {
                     assert!(out[j].is_nan(), "wrote past the degree's coefficients");
@@ -102,7 +123,9 @@ fn basis_is_orthonormal_by_monte_carlo() {
 fn modulate_multiplies_only_the_sh_channels_of_covered_pixels() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let (c, pixels, first, degree) = (14usize, 23usize, 3usize, 2u32);
-    let features: Vec<f32> = (0..c * pixels).map(|_| rng.random_range(-2.0..2.0)).collect();
+    let features: Vec<f32> = (0..c * pixels)
+        .map(|_| rng.random_range(-2.0..2.0))
+        .collect();
     let dirs: Vec<[f32; 3]> = (0..pixels).map(|_| random_dir(&mut rng)).collect();
     let coverage: Vec<f32> = (0..pixels).map(|p| (p % 4 != 1) as u8 as f32).collect();
     let mut x = features.clone();
@@ -127,10 +150,33 @@ fn modulate_rejects_bad_shapes() {
     let cov = vec![1.0f32; 4];
     let mut f = vec![1.0f32; 4 * 9];
     assert_eq!(modulate(&mut f, &dirs, &cov, 0, 4), Err(ShError::Degree(4)));
-    assert_eq!(modulate(&mut f, &dirs, &cov, 1, 2), Err(ShError::Channels { first: 1, end: 10, channels: 9 }));
+    assert_eq!(
+        modulate(&mut f, &dirs, &cov, 1, 2),
+        Err(ShError::Channels {
+            first: 1,
+            end: 10,
+            channels: 9
+        })
+    );
     assert!(modulate(&mut f, &dirs, &cov, 0, 2).is_ok());
-    assert!(matches!(modulate(&mut f[..35], &dirs, &cov, 0, 0), Err(ShError::Shape { .. })));
-    assert!(matches!(modulate(&mut f, &dirs[..3], &cov, 0, 0), Err(ShError::Shape { .. })));
-    assert_eq!(check_modulate(0, 0, 0, 0, 0), Err(ShError::Channels { first: 0, end: 1, channels: 0 }));
-    assert!(matches!(modulate(&mut f, &dirs, &cov, usize::MAX, 1), Err(ShError::Channels { .. })));
+    assert!(matches!(
+        modulate(&mut f[..35], &dirs, &cov, 0, 0),
+        Err(ShError::Shape { .. })
+    ));
+    assert!(matches!(
+        modulate(&mut f, &dirs[..3], &cov, 0, 0),
+        Err(ShError::Shape { .. })
+    ));
+    assert_eq!(
+        check_modulate(0, 0, 0, 0, 0),
+        Err(ShError::Channels {
+            first: 0,
+            end: 1,
+            channels: 0
+        })
+    );
+    assert!(matches!(
+        modulate(&mut f, &dirs, &cov, usize::MAX, 1),
+        Err(ShError::Channels { .. })
+    ));
 }

@@ -2,6 +2,9 @@
 //! unwrapped integer position that wraps onto the texel, with exact integer wrapping), for
 //! all wrap modes, uv far outside [0, 1] (1e6, negative), odd sizes and 1-texel levels.
 
+// Index loops mirror the math (pixel i, channel c) and compare several arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use dnr_runtime::gbuffer::GBuffer;
 use dnr_runtime::texture::{sample_into, taps, Level, Pyramid, TextureError, Wrap};
 use rand::{Rng, SeedableRng};
@@ -16,7 +19,11 @@ fn wrap_ref(i: i128, n: i128, mode: Wrap) -> i128 {
         Wrap::ClampToEdge => i.clamp(0, n - 1),
         Wrap::MirroredRepeat => {
             let m = i.rem_euclid(2 * n);
-            if m < n { m } else { 2 * n - 1 - m }
+            if m < n {
+                m
+            } else {
+                2 * n - 1 - m
+            }
         }
     }
 }
@@ -24,8 +31,12 @@ fn wrap_ref(i: i128, n: i128, mode: Wrap) -> i128 {
 /// Weight of texel `t` along one axis: sum of max(0, 1 - |x - k|) over integers k near x
 /// that wrap to t.
 fn axis_weight(x: f64, t: i128, n: i128, mode: Wrap) -> f64 {
-    let base = x.floor() as i128;
-    (base - 2..=base + 2).filter(|&k| wrap_ref(k, n, mode) == t).map(|k| (1.0 - (x - k as f64).abs()).max(0.0)).sum()
+    let fl = x.floor();
+    let (base, frac) = (fl as i128, x - fl); // both exact
+    (base - 2..=base + 2)
+        .filter(|&k| wrap_ref(k, n, mode) == t)
+        .map(|k| (1.0 - (frac + (base - k) as f64).abs()).max(0.0))
+        .sum()
 }
 
 fn reference(pyr: &Pyramid, u: f32, v: f32) -> Vec<f64> {
@@ -50,19 +61,43 @@ fn reference(pyr: &Pyramid, u: f32, v: f32) -> Vec<f64> {
     out
 }
 
-fn random_pyramid(rng: &mut ChaCha8Rng, c: usize, sizes: &[(usize, usize)], ws: Wrap, wt: Wrap) -> Pyramid {
+fn random_pyramid(
+    rng: &mut ChaCha8Rng,
+    c: usize,
+    sizes: &[(usize, usize)],
+    ws: Wrap,
+    wt: Wrap,
+) -> Pyramid {
     let levels = sizes
         .iter()
-        .map(|&(w, h)| Level { width: w, height: h, data: (0..w * h * c).map(|_| rng.random_range(-1.0..1.0)).collect() })
+        .map(|&(w, h)| Level {
+            width: w,
+            height: h,
+            data: (0..w * h * c)
+                .map(|_| rng.random_range(-1.0..1.0))
+                .collect(),
+        })
         .collect();
     Pyramid::new(c, levels, ws, wt).unwrap()
 }
 
 fn special_uvs() -> Vec<[f32; 2]> {
     vec![
-        [0.0, 0.0], [1.0, 1.0], [0.5, 0.5], [1.0 / 14.0, 0.1], [-0.25, 1.75], [2.0, -3.0],
-        [1e6, 1e6], [-1e6, 1e6], [1e6 + 0.25, -1e6 - 0.3125], [-12345.678, 9876.543],
-        [3.999_999_8, -0.000_000_1], [16_777_216.0, -16_777_215.0],
+        [0.0, 0.0],
+        [1.0, 1.0],
+        [0.5, 0.5],
+        [1.0 / 14.0, 0.1],
+        [-0.25, 1.75],
+        [2.0, -3.0],
+        [1e6, 1e6],
+        [-1e6, 1e6],
+        [1e6 + 0.25, -1e6 - 0.3125],
+        [-12345.678, 9876.543],
+        [3.999_999_8, -0.000_000_1],
+        [16_777_216.0, -16_777_215.0],
+        // Beyond 4e15 texels the exact f64 path wraps (no fractional bits left).
+        [1e16, -3e17],
+        [-7.5e15, 2.5e20],
     ]
 }
 
@@ -112,12 +147,20 @@ fn sampling_matches_the_naive_reference_for_every_wrap_mode() {
 fn taps_weights_sum_to_one_and_stay_in_range_for_extreme_uv() {
     for ws in WRAPS {
         for wt in WRAPS {
-            for &(u, v) in &[(3.0e38f32, -3.0e38f32), (1e20, 1e-20), (-1e9, 7.5), (f32::MAX, f32::MIN), (f32::MIN_POSITIVE, -0.0)] {
+            for &(u, v) in &[
+                (3.0e38f32, -3.0e38f32),
+                (1e20, 1e-20),
+                (-1e9, 7.5),
+                (f32::MAX, f32::MIN),
+                (f32::MIN_POSITIVE, -0.0),
+            ] {
                 for (w, h) in [(1, 1), (7, 5), (512, 256)] {
                     let t = taps(w, h, ws, wt, u, v).unwrap();
                     let sum: f32 = t.iter().map(|t| t.1).sum();
                     assert!((sum - 1.0).abs() < 1e-6, "{sum}");
-                    assert!(t.iter().all(|&(i, wgt)| i < w * h && (0.0..=1.0).contains(&wgt)));
+                    assert!(t
+                        .iter()
+                        .all(|&(i, wgt)| i < w * h && (0.0..=1.0).contains(&wgt)));
                 }
             }
             assert!(taps(4, 4, ws, wt, f32::NAN, 0.0).is_none());
@@ -154,18 +197,42 @@ fn wrap_enum_values_round_trip() {
 
 #[test]
 fn malformed_inputs_are_errors() {
-    let lvl = |w: usize, h: usize, n: usize| Level { width: w, height: h, data: vec![0.0; n] };
-    assert_eq!(Pyramid::new(0, vec![lvl(1, 1, 0)], Wrap::Repeat, Wrap::Repeat), Err(TextureError::Empty));
-    assert_eq!(Pyramid::new(2, vec![], Wrap::Repeat, Wrap::Repeat), Err(TextureError::Empty));
-    assert!(matches!(Pyramid::new(2, vec![lvl(2, 2, 7)], Wrap::Repeat, Wrap::Repeat), Err(TextureError::LevelSize { level: 0, .. })));
+    let lvl = |w: usize, h: usize, n: usize| Level {
+        width: w,
+        height: h,
+        data: vec![0.0; n],
+    };
+    assert_eq!(
+        Pyramid::new(0, vec![lvl(1, 1, 0)], Wrap::Repeat, Wrap::Repeat),
+        Err(TextureError::Empty)
+    );
+    assert_eq!(
+        Pyramid::new(2, vec![], Wrap::Repeat, Wrap::Repeat),
+        Err(TextureError::Empty)
+    );
     assert!(matches!(
-        Pyramid::new(1, vec![lvl(2, 2, 4), lvl(0, 3, 0)], Wrap::Repeat, Wrap::Repeat),
+        Pyramid::new(2, vec![lvl(2, 2, 7)], Wrap::Repeat, Wrap::Repeat),
+        Err(TextureError::LevelSize { level: 0, .. })
+    ));
+    assert!(matches!(
+        Pyramid::new(
+            1,
+            vec![lvl(2, 2, 4), lvl(0, 3, 0)],
+            Wrap::Repeat,
+            Wrap::Repeat
+        ),
         Err(TextureError::LevelSize { level: 1, .. })
     ));
     let pyr = Pyramid::new(2, vec![lvl(2, 2, 8)], Wrap::Repeat, Wrap::Repeat).unwrap();
     let g = GBuffer::new(3, 2);
     let mut out = vec![0.0; 11];
-    assert!(matches!(sample_into(&pyr, &g, &mut out), Err(TextureError::OutputSize { expected: 12, found: 11 })));
+    assert!(matches!(
+        sample_into(&pyr, &g, &mut out),
+        Err(TextureError::OutputSize {
+            expected: 12,
+            found: 11
+        })
+    ));
     let mut empty = GBuffer::new(0, 0);
     assert!(sample_into(&pyr, &empty, &mut []).is_ok());
     empty.width = 2; // inconsistent G-buffer: 2x1 pixels, empty planes
@@ -176,7 +243,13 @@ fn malformed_inputs_are_errors() {
 #[test]
 fn sampling_is_identical_across_thread_counts() {
     let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let pyr = random_pyramid(&mut rng, 16, &[(64, 48), (32, 24), (16, 12)], Wrap::Repeat, Wrap::MirroredRepeat);
+    let pyr = random_pyramid(
+        &mut rng,
+        16,
+        &[(64, 48), (32, 24), (16, 12)],
+        Wrap::Repeat,
+        Wrap::MirroredRepeat,
+    );
     let (w, h) = (37, 29);
     let mut g = GBuffer::new(w, h);
     for i in 0..w * h {
@@ -185,7 +258,12 @@ fn sampling_is_identical_across_thread_counts() {
     }
     let run = |n| {
         let mut out = vec![0.0; 16 * w * h];
-        rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap().install(|| sample_into(&pyr, &g, &mut out)).unwrap();
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+            .install(|| sample_into(&pyr, &g, &mut out))
+            .unwrap();
         out
     };
     assert_eq!(run(1), run(3));

@@ -6,7 +6,7 @@ use crate::kernels::adam::{Adam, AdamConfig};
 use crate::kernels::loss::l1_loss;
 use crate::kernels::unet::UNetTrain;
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
-use dnr_runtime::nn::gemm::{gemm_nn, PackedA};
+use dnr_runtime::nn::gemm::{gemm_nn, simd_level, PackedA, SimdLevel};
 use dnr_runtime::nn::Tensor;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -108,14 +108,14 @@ pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let target = random_tensor(&mut r, 3, size, size);
     let mut dy = Tensor::zeros(3, size, size);
     let (t_min, t_med) = time_min_median(reps, || {
-        net.zero_grad();
+        // Gradients start at zero: step_zero_grad clears them after each update.
         let (y, acts) = net.forward(&x).expect("shapes");
         dy.data.fill(0.0);
         l1_loss(&y, &target, None, 1.0, &mut dy);
         let dx = net.backward(&acts, &dy);
         std::hint::black_box(dx);
-        for ((w, g), o) in net.weights.iter_mut().zip(&net.grads).zip(&mut opts) {
-            o.step(w, g);
+        for ((w, g), o) in net.weights.iter_mut().zip(&mut net.grads).zip(&mut opts) {
+            o.step_zero_grad(w, g);
         }
     });
     BenchRow {
@@ -153,8 +153,9 @@ pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
 pub struct BenchReport {
     /// sgemm 1024 GFLOP/s measured in this run.
     pub peak_gflops: f64,
-    /// Whether the SIMD kernels were used.
-    pub simd: bool,
+    /// Kernel instruction set used (see `dnr_runtime::nn::gemm::set_simd_cap` to emulate an
+    /// AVX2-only CPU).
+    pub simd: SimdLevel,
     /// Worker threads.
     pub threads: usize,
     /// Measurements.
@@ -176,7 +177,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
     }
     BenchReport {
         peak_gflops: peak,
-        simd: dnr_runtime::nn::gemm::simd_active(),
+        simd: simd_level(),
         threads: rayon::current_num_threads(),
         rows,
     }
@@ -186,7 +187,7 @@ impl fmt::Display for BenchReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; simd {}; {} threads",
+            "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; kernels {:?}; {} threads",
             self.peak_gflops, self.simd, self.threads
         )?;
         writeln!(

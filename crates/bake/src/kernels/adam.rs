@@ -90,6 +90,31 @@ impl Adam {
         self.t
     }
 
+    /// [`Adam::step`], then zeroes `grads` in the same pass (saves the separate zero-grad
+    /// sweep over every gradient).
+    pub fn step_zero_grad(&mut self, params: &mut [f32], grads: &mut [f32]) {
+        assert!(
+            params.len() == self.m.len() && grads.len() == self.m.len(),
+            "adam: length"
+        );
+        self.t += 1;
+        let k = StepConsts::new(&self.cfg, self.t);
+        params
+            .par_chunks_mut(CHUNK)
+            .zip(grads.par_chunks_mut(CHUNK))
+            .zip(
+                self.m
+                    .par_chunks_mut(CHUNK)
+                    .zip(self.v.par_chunks_mut(CHUNK)),
+            )
+            .for_each(|((p, g), (m, v))| {
+                for i in 0..p.len() {
+                    k.update(&mut p[i], g[i], &mut m[i], &mut v[i]);
+                    g[i] = 0.0;
+                }
+            });
+    }
+
     /// One step: `params -= lr * mhat / (sqrt(vhat) + eps)`. Does not clear `grads`.
     pub fn step(&mut self, params: &mut [f32], grads: &[f32]) {
         assert!(
@@ -217,5 +242,63 @@ impl SparseAdam {
                 }
             }
         });
+    }
+}
+
+/// The moments and step counts of an optimiser, for checkpoints.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AdamState {
+    /// First moments.
+    pub m: Vec<f32>,
+    /// Second moments.
+    pub v: Vec<f32>,
+    /// Step count(s): one entry for dense Adam, one per row for the sparse variant.
+    pub t: Vec<u64>,
+}
+
+impl Adam {
+    /// A copy of the moments and step count.
+    pub fn state(&self) -> AdamState {
+        AdamState {
+            m: self.m.clone(),
+            v: self.v.clone(),
+            t: vec![self.t],
+        }
+    }
+
+    /// Restores [`Adam::state`]; false (and nothing changed) when the sizes disagree.
+    pub fn set_state(&mut self, s: AdamState) -> bool {
+        if s.m.len() != self.m.len() || s.v.len() != self.v.len() || s.t.len() != 1 {
+            return false;
+        }
+        (self.m, self.v, self.t) = (s.m, s.v, s.t[0]);
+        true
+    }
+}
+
+impl SparseAdam {
+    /// A copy of the moments and per-row step counts.
+    pub fn state(&self) -> AdamState {
+        AdamState {
+            m: self.m.clone(),
+            v: self.v.clone(),
+            t: self.t.iter().map(|&t| t as u64).collect(),
+        }
+    }
+
+    /// Restores [`SparseAdam::state`]; false (and nothing changed) when the sizes disagree.
+    pub fn set_state(&mut self, s: AdamState) -> bool {
+        if s.m.len() != self.m.len() || s.v.len() != self.v.len() || s.t.len() != self.t.len() {
+            return false;
+        }
+        let Ok(t) =
+            s.t.iter()
+                .map(|&t| u32::try_from(t))
+                .collect::<Result<Vec<u32>, _>>()
+        else {
+            return false;
+        };
+        (self.m, self.v, self.t) = (s.m, s.v, t);
+        true
     }
 }

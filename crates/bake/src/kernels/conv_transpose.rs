@@ -100,7 +100,10 @@ pub fn conv_transpose_backward(
             .for_each(|(dst, src)| {
                 for y in 0..h {
                     let srow = &src[(2 * y + py) * dy.w..(2 * y + py + 1) * dy.w];
-                    for (d, s) in dst[y * pitch..y * pitch + wi].iter_mut().zip(srow[px..].chunks(2)) {
+                    for (d, s) in dst[y * pitch..y * pitch + wi]
+                        .iter_mut()
+                        .zip(srow[px..].chunks(2))
+                    {
                         *d = s[0];
                     }
                 }

@@ -29,14 +29,25 @@ pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<
 /// Texels per parallel task of the gather.
 const TEXEL_CHUNK: usize = 4096;
 
-fn check(pyr: &Pyramid, gbuf: &GBuffer, d_out: &[f32], grads: &[Vec<f32>]) -> Result<(), TextureError> {
+fn check(
+    pyr: &Pyramid,
+    gbuf: &GBuffer,
+    d_out: &[f32],
+    grads: &[Vec<f32>],
+) -> Result<(), TextureError> {
     pyr.validate()?;
     let expected = pyr.channels * gbuf.width * gbuf.height;
     if d_out.len() != expected || !gbuf.is_consistent() {
-        return Err(TextureError::OutputSize { expected, found: d_out.len() });
+        return Err(TextureError::OutputSize {
+            expected,
+            found: d_out.len(),
+        });
     }
     if grads.len() != pyr.levels.len() {
-        return Err(TextureError::OutputSize { expected: pyr.levels.len(), found: grads.len() });
+        return Err(TextureError::OutputSize {
+            expected: pyr.levels.len(),
+            found: grads.len(),
+        });
     }
     for (k, (g, l)) in grads.iter().zip(&pyr.levels).enumerate() {
         if g.len() != l.data.len() {
@@ -71,17 +82,22 @@ pub fn sample_backward(
     // Pixels that contribute, and their upstream gradient transposed to [P, C] so each tap
     // reads C contiguous values.
     let active: Vec<u32> = (0..n)
-        .filter(|&i| gbuf.coverage[i] != 0.0 && gbuf.uv[i][0].is_finite() && gbuf.uv[i][1].is_finite())
+        .filter(|&i| {
+            gbuf.coverage[i] != 0.0 && gbuf.uv[i][0].is_finite() && gbuf.uv[i][1].is_finite()
+        })
         .map(|i| i as u32)
         .collect();
     let mut d_act = vec![0.0f32; active.len() * c];
-    d_act.par_chunks_mut(c * 1024).zip(active.par_chunks(1024)).for_each(|(dst, px)| {
-        for (row, &p) in dst.chunks_exact_mut(c).zip(px) {
-            for (ch, v) in row.iter_mut().enumerate() {
-                *v = d_out[ch * n + p as usize];
+    d_act
+        .par_chunks_mut(c * 1024)
+        .zip(active.par_chunks(1024))
+        .for_each(|(dst, px)| {
+            for (row, &p) in dst.chunks_exact_mut(c).zip(px) {
+                for (ch, v) in row.iter_mut().enumerate() {
+                    *v = d_out[ch * n + p as usize];
+                }
             }
-        }
-    });
+        });
 
     let mut touched = Vec::with_capacity(pyr.levels.len());
     let mut tap_texel = vec![0u32; active.len() * 4];
@@ -90,8 +106,11 @@ pub fn sample_backward(
         let (lw, lh) = (level.width, level.height);
         let texels = lw * lh;
         // 1. Taps of every active pixel (parallel, each pixel writes its own 4 slots).
-        tap_texel.par_chunks_mut(4 * 1024).zip(tap_weight.par_chunks_mut(4 * 1024)).zip(active.par_chunks(1024)).for_each(
-            |((tt, tw), px)| {
+        tap_texel
+            .par_chunks_mut(4 * 1024)
+            .zip(tap_weight.par_chunks_mut(4 * 1024))
+            .zip(active.par_chunks(1024))
+            .for_each(|((tt, tw), px)| {
                 for ((tt, tw), &p) in tt.chunks_exact_mut(4).zip(tw.chunks_exact_mut(4)).zip(px) {
                     let [u, v] = gbuf.uv[p as usize];
                     // Active pixels have finite uv and the level is non-empty: taps exist.
@@ -101,8 +120,7 @@ pub fn sample_backward(
                         tw[k] = w;
                     }
                 }
-            },
-        );
+            });
         // 2. Stable counting sort of the non-zero taps by texel.
         let mut start = vec![0u32; texels + 1];
         for (&t, &w) in tap_texel.iter().zip(&tap_weight) {
@@ -126,28 +144,30 @@ pub fn sample_backward(
             }
         }
         // 3. Gather: each task owns a disjoint range of texels and sums in pixel order.
-        grad.par_chunks_mut(TEXEL_CHUNK * c).enumerate().for_each(|(chunk, g)| {
-            let t0 = chunk * TEXEL_CHUNK;
-            let mut acc = vec![0.0f32; c];
-            for (i, gt) in g.chunks_exact_mut(c).enumerate() {
-                let t = t0 + i;
-                let (s, e) = (start[t] as usize, start[t + 1] as usize);
-                if s == e {
-                    continue;
-                }
-                acc.fill(0.0);
-                for &entry in &order[s..e] {
-                    let w = tap_weight[entry as usize];
-                    let d = &d_act[(entry as usize / 4) * c..][..c];
-                    for (a, &dv) in acc.iter_mut().zip(d) {
-                        *a += w * dv;
+        grad.par_chunks_mut(TEXEL_CHUNK * c)
+            .enumerate()
+            .for_each(|(chunk, g)| {
+                let t0 = chunk * TEXEL_CHUNK;
+                let mut acc = vec![0.0f32; c];
+                for (i, gt) in g.chunks_exact_mut(c).enumerate() {
+                    let t = t0 + i;
+                    let (s, e) = (start[t] as usize, start[t + 1] as usize);
+                    if s == e {
+                        continue;
+                    }
+                    acc.fill(0.0);
+                    for &entry in &order[s..e] {
+                        let w = tap_weight[entry as usize];
+                        let d = &d_act[(entry as usize / 4) * c..][..c];
+                        for (a, &dv) in acc.iter_mut().zip(d) {
+                            *a += w * dv;
+                        }
+                    }
+                    for (gv, a) in gt.iter_mut().zip(&acc) {
+                        *gv += a;
                     }
                 }
-                for (gv, a) in gt.iter_mut().zip(&acc) {
-                    *gv += a;
-                }
-            }
-        });
+            });
         touched.push(list);
     }
     Ok(touched)
@@ -164,14 +184,20 @@ pub fn sample_backward_serial(
     check(pyr, gbuf, d_out, grads)?;
     let c = pyr.channels;
     let n = gbuf.width * gbuf.height;
-    let mut marks: Vec<Vec<bool>> = pyr.levels.iter().map(|l| vec![false; l.width * l.height]).collect();
+    let mut marks: Vec<Vec<bool>> = pyr
+        .levels
+        .iter()
+        .map(|l| vec![false; l.width * l.height])
+        .collect();
     for p in 0..n {
         if gbuf.coverage[p] == 0.0 {
             continue;
         }
         let [u, v] = gbuf.uv[p];
         for ((level, grad), mark) in pyr.levels.iter().zip(grads.iter_mut()).zip(&mut marks) {
-            let Some(tp) = taps(level.width, level.height, pyr.wrap_s, pyr.wrap_t, u, v) else { break };
+            let Some(tp) = taps(level.width, level.height, pyr.wrap_s, pyr.wrap_t, u, v) else {
+                break;
+            };
             for (t, w) in tp {
                 if w == 0.0 {
                     continue;
@@ -185,6 +211,12 @@ pub fn sample_backward_serial(
     }
     Ok(marks
         .iter()
-        .map(|m| m.iter().enumerate().filter(|(_, &b)| b).map(|(t, _)| t as u32).collect())
+        .map(|m| {
+            m.iter()
+                .enumerate()
+                .filter(|(_, &b)| b)
+                .map(|(t, _)| t as u32)
+                .collect()
+        })
         .collect())
 }

@@ -9,8 +9,8 @@
 //! `dL/dF = dL/dX` elsewhere: the operation is linear and diagonal in F, so its backward is
 //! the same multiplication applied to the upstream gradient, in place.
 
-pub use dnr_runtime::sh::ShError;
 use dnr_runtime::sh::modulate;
+pub use dnr_runtime::sh::ShError;
 
 /// Forward, in place: `features` becomes `X`.
 pub fn modulate_forward(

@@ -6,7 +6,7 @@ use super::activation::{leaky_relu_backward, tanh_backward};
 use super::concat::concat_backward;
 use super::conv::{conv_backward, conv_forward, conv_forward_act, ConvCache};
 use super::conv_transpose::{conv_transpose_backward, conv_transpose_forward_act, TconvCache};
-use super::norm::instance_norm_backward;
+use super::norm::lrelu_instance_norm_backward;
 use super::upsample::upsample_nearest2_backward;
 use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
 use dnr_runtime::network::{check_no_extra, fetch_tensors, map_lookup, NetworkError};
@@ -271,9 +271,9 @@ impl UNetTrain {
             // g = dL/d(output of up_i before norm), after the chain rule through norm and act.
             if i > 0 {
                 let z = acts.dec_z[i].as_ref().expect("decoder activations");
-                leaky_relu_backward(&z.data, &mut g.data, LEAKY_SLOPE);
-                if let Some(st) = &acts.dec_stats[i] {
-                    instance_norm_backward(z, st, &mut g);
+                match &acts.dec_stats[i] {
+                    Some(st) => lrelu_instance_norm_backward(z, st, LEAKY_SLOPE, &mut g),
+                    None => leaky_relu_backward(&z.data, &mut g.data, LEAKY_SLOPE),
                 }
             }
             let (ci, _) = p.decoder_channels(i);
@@ -298,9 +298,9 @@ impl UNetTrain {
         let mut dinput = Tensor::zeros(p.in_ch, acts.out.h, acts.out.w);
         for i in (0..d).rev() {
             let mut gi = std::mem::replace(&mut de[i], Tensor::zeros(0, 0, 0));
-            leaky_relu_backward(&acts.enc_z[i].data, &mut gi.data, LEAKY_SLOPE);
-            if let Some(st) = &acts.enc_stats[i] {
-                instance_norm_backward(&acts.enc_z[i], st, &mut gi);
+            match &acts.enc_stats[i] {
+                Some(st) => lrelu_instance_norm_backward(&acts.enc_z[i], st, LEAKY_SLOPE, &mut gi),
+                None => leaky_relu_backward(&acts.enc_z[i].data, &mut gi.data, LEAKY_SLOPE),
             }
             let (wi, bi) = (2 * i, 2 * i + 1);
             let (gw, gb) = two_mut(&mut self.grads, wi, bi);

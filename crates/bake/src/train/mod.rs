@@ -2,10 +2,13 @@
 //! crops (or whole frames), L1 photometric loss, mean-colour loss on channels 0..2, per-level
 //! L2 regularisation, Adam. One step reads top to bottom in [`Trainer::step`].
 
+pub mod checkpoint;
 pub mod config;
 pub mod init;
 pub mod views;
 
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
@@ -40,10 +43,21 @@ pub enum TrainError {
     /// A kernel refused its input.
     #[error("{0}")]
     Kernel(String),
+    /// Writing or reading a checkpoint failed.
+    #[error(transparent)]
+    Checkpoint(#[from] checkpoint::CheckpointError),
+    /// Stopped by the user (Ctrl-C) after writing a checkpoint.
+    #[error("interrupted at step {step}; checkpoint written to {path}: run again with --resume")]
+    Interrupted {
+        /// Steps done.
+        step: u64,
+        /// The checkpoint.
+        path: String,
+    },
 }
 
 /// One timed record of the report.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct Record {
     /// Optimisation steps done.
     pub step: u64,
@@ -370,6 +384,82 @@ impl Trainer {
     }
 }
 
+impl Trainer {
+    /// The whole training state (with the run's progress) as a checkpoint.
+    pub fn checkpoint(&self, state: &RunState) -> checkpoint::Checkpoint {
+        let mut c = checkpoint::Checkpoint {
+            header: checkpoint::Header {
+                config: serde_json::to_value(&self.cfg).unwrap_or_default(),
+                step: self.step,
+                train_secs: state.train_secs,
+                next_eval: state.next_eval,
+                records: serde_json::to_value(&state.records).unwrap_or_default(),
+                rng_seed: self.rng.get_seed(),
+                rng_word_pos: self.rng.get_word_pos(),
+                loss_sum: self.loss_sum,
+                loss_n: self.loss_n,
+                arrays: Vec::new(),
+                adam_steps: Vec::new(),
+            },
+            arrays: Vec::new(),
+        };
+        for (k, l) in self.pyr.levels.iter().enumerate() {
+            c.push(&format!("texture.{k}"), &l.data);
+            c.push_adam(&format!("texture.{k}.adam"), &self.tex_adam[k].state());
+        }
+        if let Net::Unet { net, adam } = &self.net {
+            for (i, (w, a)) in net.weights.iter().zip(adam).enumerate() {
+                c.push(&format!("net.{i}"), w);
+                c.push_adam(&format!("net.{i}.adam"), &a.state());
+            }
+        }
+        c
+    }
+
+    /// Restores a checkpoint written by [`Trainer::checkpoint`] for the same configuration.
+    pub fn restore(&mut self, c: &checkpoint::Checkpoint, path: &Path) -> Result<RunState, TrainError> {
+        let bad = |what: String| checkpoint::CheckpointError::Corrupt { path: path.to_path_buf(), what };
+        let mut want = serde_json::to_value(&self.cfg).unwrap_or_default();
+        let mut have = c.header.config.clone();
+        // The budget may be raised on resume; everything else must match.
+        for v in [&mut want, &mut have] {
+            if let Some(o) = v.as_object_mut() {
+                o.remove("timeBudget");
+            }
+        }
+        if want != have {
+            return Err(bad(format!("written for another configuration: {have}")).into());
+        }
+        for (k, l) in self.pyr.levels.iter_mut().enumerate() {
+            let name = format!("texture.{k}");
+            let a = c.array(&name).filter(|a| a.len() == l.data.len()).ok_or_else(|| bad(name.clone()))?;
+            l.data.copy_from_slice(a);
+            let st = c.adam(&format!("{name}.adam")).ok_or_else(|| bad(format!("{name}.adam")))?;
+            if !self.tex_adam[k].set_state(st) {
+                return Err(bad(format!("{name}.adam size")).into());
+            }
+        }
+        if let Net::Unet { net, adam } = &mut self.net {
+            for (i, (w, a)) in net.weights.iter_mut().zip(adam.iter_mut()).enumerate() {
+                let name = format!("net.{i}");
+                let v = c.array(&name).filter(|v| v.len() == w.len()).ok_or_else(|| bad(name.clone()))?;
+                w.copy_from_slice(v);
+                let st = c.adam(&format!("{name}.adam")).ok_or_else(|| bad(format!("{name}.adam")))?;
+                if !a.set_state(st) {
+                    return Err(bad(format!("{name}.adam size")).into());
+                }
+            }
+        }
+        self.rng = ChaCha8Rng::from_seed(c.header.rng_seed);
+        self.rng.set_word_pos(c.header.rng_word_pos);
+        self.step = c.header.step;
+        self.loss_sum = c.header.loss_sum;
+        self.loss_n = c.header.loss_n;
+        let records = serde_json::from_value(c.header.records.clone()).map_err(|e| bad(e.to_string()))?;
+        Ok(RunState { train_secs: c.header.train_secs, next_eval: c.header.next_eval, records })
+    }
+}
+
 fn uvs_in_unit_square(views: &[View]) -> bool {
     views.iter().all(|v| {
         v.gbuf
@@ -380,37 +470,71 @@ fn uvs_in_unit_square(views: &[View]) -> bool {
     })
 }
 
-/// Trains until the step limit or the time budget, evaluating every `eval_every` seconds.
-/// `on_record` sees each record (progress display).
+/// Progress of a run that a checkpoint carries besides the trainer.
+#[derive(Clone, Debug, Default)]
+pub struct RunState {
+    /// Training seconds (evaluation excluded).
+    pub train_secs: f64,
+    /// Training second of the next evaluation.
+    pub next_eval: f64,
+    /// Records so far.
+    pub records: Vec<Record>,
+}
+
+/// Where and how often to checkpoint, and the flag that asks the loop to stop.
+pub struct Checkpointing<'a> {
+    /// Checkpoint file.
+    pub path: &'a Path,
+    /// Wall-clock seconds between checkpoints.
+    pub every: f64,
+    /// Set (e.g. by a Ctrl-C handler) to checkpoint and stop.
+    pub stop: &'a AtomicBool,
+}
+
+/// Trains until the step limit or the time budget, evaluating every `eval_every` seconds
+/// and checkpointing as asked. `on_step` and `on_record` drive the progress display.
 pub fn run(
     trainer: &mut Trainer,
+    state: &mut RunState,
     train: &[View],
     test: &[View],
+    ckpt: Option<&Checkpointing>,
     mut on_step: impl FnMut(&Trainer, f64),
     mut on_record: impl FnMut(&Record),
-) -> Result<Vec<Record>, TrainError> {
-    let mut records = Vec::new();
-    let mut train_secs = 0.0f64;
-    let mut next_eval = trainer.cfg.eval_every;
+) -> Result<(), TrainError> {
+    if state.next_eval <= 0.0 {
+        state.next_eval = trainer.cfg.eval_every;
+    }
     let budget = trainer.cfg.time_budget;
-    while trainer.step < trainer.cfg.steps && (budget <= 0.0 || train_secs < budget) {
+    let mut last_ckpt = Instant::now();
+    while trainer.step < trainer.cfg.steps && (budget <= 0.0 || state.train_secs < budget) {
         let t0 = Instant::now();
         trainer.step(train)?;
-        train_secs += t0.elapsed().as_secs_f64();
-        on_step(trainer, train_secs);
-        if trainer.cfg.eval_every > 0.0 && train_secs >= next_eval && !test.is_empty() {
-            next_eval += trainer.cfg.eval_every;
-            let rec = record(trainer, test, train_secs)?;
+        state.train_secs += t0.elapsed().as_secs_f64();
+        on_step(trainer, state.train_secs);
+        if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
+            state.next_eval += trainer.cfg.eval_every;
+            let rec = record(trainer, test, state.train_secs)?;
             on_record(&rec);
-            records.push(rec);
+            state.records.push(rec);
+        }
+        if let Some(c) = ckpt {
+            let stop = c.stop.load(Ordering::SeqCst);
+            if stop || last_ckpt.elapsed().as_secs_f64() >= c.every {
+                trainer.checkpoint(state).write(c.path)?;
+                last_ckpt = Instant::now();
+            }
+            if stop {
+                return Err(TrainError::Interrupted { step: trainer.step, path: c.path.display().to_string() });
+            }
         }
     }
-    if !test.is_empty() {
-        let rec = record(trainer, test, train_secs)?;
+    if !test.is_empty() && state.records.last().is_none_or(|r: &Record| r.step != trainer.step) {
+        let rec = record(trainer, test, state.train_secs)?;
         on_record(&rec);
-        records.push(rec);
+        state.records.push(rec);
     }
-    Ok(records)
+    Ok(())
 }
 
 fn record(trainer: &mut Trainer, test: &[View], seconds: f64) -> Result<Record, TrainError> {

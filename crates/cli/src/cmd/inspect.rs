@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use dnr_format::asset::{material_extension_value, root_extension_value};
+use dnr_format::asset::{bound_primitive_values, root_extension_value};
 use dnr_format::exr_codec::{read_level_header, LevelCompression};
-use dnr_format::model::{Extension, MaterialExtension};
+use dnr_format::model::{Extension, PrimitiveExtension};
 use dnr_format::{Container, Limits};
 use serde::Serialize;
 
@@ -30,16 +30,20 @@ struct Summary {
     primitives: usize,
     vertices: u64,
     triangles: u64,
-    materials: Vec<MaterialSummary>,
+    bindings: Vec<BindingSummary>,
     neural_textures: Vec<TextureSummary>,
     renderers: Vec<RendererSummary>,
     bytes: Bytes,
 }
 
+/// A mesh primitive's `EXT_deferred_neural_rendering` binding.
 #[derive(Serialize)]
-struct MaterialSummary {
-    index: usize,
-    name: Option<String>,
+struct BindingSummary {
+    mesh: usize,
+    primitive: usize,
+    /// The fallback material.
+    material: Option<usize>,
+    material_name: Option<String>,
     neural_texture: u32,
     renderer: u32,
     tex_coord: u32,
@@ -242,16 +246,18 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
     let json_bytes = serde_json::to_vec(root)
         .map(|v| v.len() as u64)
         .unwrap_or(0);
-    let materials = root
-        .materials
-        .iter()
-        .enumerate()
-        .filter_map(|(i, m)| {
-            let e: MaterialExtension =
-                serde_json::from_value(material_extension_value(m)?.clone()).ok()?;
-            Some(MaterialSummary {
-                index: i,
-                name: m.name.clone(),
+    let bindings = bound_primitive_values(root)
+        .into_iter()
+        .filter_map(|(mi, pi, v)| {
+            let e: PrimitiveExtension = serde_json::from_value(v.clone()).ok()?;
+            let material = root.meshes[mi].primitives[pi].material.map(|m| m.value());
+            Some(BindingSummary {
+                mesh: mi,
+                primitive: pi,
+                material,
+                material_name: material
+                    .and_then(|m| root.materials.get(m))
+                    .and_then(|m| m.name.clone()),
                 neural_texture: e.neural_texture,
                 renderer: e.renderer,
                 tex_coord: e.tex_coord,
@@ -266,7 +272,7 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
         primitives,
         vertices,
         triangles,
-        materials,
+        bindings,
         neural_textures: textures,
         renderers,
         bytes: Bytes {
@@ -291,14 +297,15 @@ fn print_text(s: &Summary) {
         "meshes: {} ({} primitives, {} vertices, {} triangles)",
         s.meshes, s.primitives, s.vertices, s.triangles
     );
-    for m in &s.materials {
+    for b in &s.bindings {
+        let fallback = match (b.material, b.material_name.as_deref()) {
+            (Some(m), Some(name)) => format!("fallback material {m} `{name}`"),
+            (Some(m), None) => format!("fallback material {m}"),
+            (None, _) => "no fallback material".to_string(),
+        };
         println!(
-            "material {} {}: neural texture {}, renderer {}, TEXCOORD_{}",
-            m.index,
-            m.name.as_deref().unwrap_or(""),
-            m.neural_texture,
-            m.renderer,
-            m.tex_coord
+            "mesh {} primitive {}: neural texture {}, renderer {}, TEXCOORD_{} ({fallback})",
+            b.mesh, b.primitive, b.neural_texture, b.renderer, b.tex_coord
         );
     }
     for (i, t) in s.neural_textures.iter().enumerate() {

@@ -48,7 +48,7 @@ pub const CODES: &[CodeInfo] = &[
     row("VERSION_UNSUPPORTED", E, "The extension's version is not 1; version-1 readers ignore the extension and show the fallback."),
     row("EXTENSION_REQUIRED", E, "The extension is listed in extensionsRequired; it must only be in extensionsUsed so viewers can fall back."),
     row("EXTENSION_NOT_USED", E, "The extension is used but missing from extensionsUsed."),
-    row("FALLBACK_MISSING", E, "A material with the extension has no pbrMetallicRoughness.baseColorTexture fallback."),
+    row("FALLBACK_MISSING", E, "A primitive with the extension has no material, or its material lacks pbrMetallicRoughness.baseColorTexture or KHR_materials_unlit."),
     row("TEXTURE_NO_LEVELS", E, "A neural texture has no levels."),
     row("TEXTURE_MIME_TYPE", E, "A level's mimeType is not image/x-exr."),
     row("TEXTURE_CHANNELS_RANGE", E, "A neural texture declares 0 channels."),
@@ -62,7 +62,7 @@ pub const CODES: &[CodeInfo] = &[
     row("SH_CHANNELS_OUT_OF_RANGE", E, "firstChannel + (degree+1)^2 exceeds the texture's channels."),
     row("RENDERER_UNKNOWN_ARCHITECTURE", E, "The renderer's architecture is not none, mlp or unet."),
     row("RENDERER_PARAMETER_INVALID", E, "A renderer parameter (hidden, widths, decoder, normalization, inputChannels) is missing, unknown or out of range."),
-    row("RENDERER_INPUT_MISMATCH", E, "A material pairs a texture and a renderer whose channels and inputChannels differ."),
+    row("RENDERER_INPUT_MISMATCH", E, "A primitive's binding pairs a texture and a renderer whose channels and inputChannels differ."),
     row("RENDERER_OUTPUT_CHANNELS", E, "outputChannels is not 3 or 4."),
     row("WEIGHTS_MISSING", E, "A tensor the architecture requires is absent."),
     row("WEIGHTS_UNEXPECTED", E, "A tensor the architecture does not name is present, or a name repeats."),
@@ -72,7 +72,7 @@ pub const CODES: &[CodeInfo] = &[
     row("WEIGHTS_CHECKSUM_MISMATCH", E, "A tensor's CRC-32 differs from its crc32 property."),
     row("WEIGHTS_NON_FINITE", E, "A tensor holds NaN or infinite values."),
     row("LIMIT_EXCEEDED", E, "A size exceeds the validator's configured limits (raise them for trusted inputs)."),
-    row("TEXCOORD_MISSING", W, "A primitive whose material uses the extension lacks the TEXCOORD_n attribute it names."),
+    row("TEXCOORD_MISSING", W, "A primitive with the extension lacks the TEXCOORD_n attribute its binding names."),
 ];
 
 /// The table row of `code`.

@@ -17,12 +17,14 @@ use serde_json::Value;
 pub use codes::{code_info, CodeInfo, Severity, CODES};
 
 use crate::architecture::{architecture_tensors, renderer_problems};
-use crate::asset::{material_extension_value, root_extension_value};
+use crate::asset::{
+    bound_primitive_values, fallback_problem, root_extension_value, FallbackProblem,
+};
 use crate::container::{self, parse_glb, parse_root, resolve_buffer, Problem};
 use crate::error::{Error, Result};
 use crate::exr_codec::{decode_level_halves, header_problems, read_level_header, LevelExpect};
 use crate::limits::Limits;
-use crate::model::{self, MaterialExtension, NeuralTexture, Renderer};
+use crate::model::{self, NeuralTexture, PrimitiveExtension, Renderer};
 use crate::EXTENSION_NAME;
 
 /// One problem found by the validator.
@@ -464,13 +466,8 @@ fn deserialize<T: serde::de::DeserializeOwned>(v: &Value) -> std::result::Result
 fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
     let root = doc.root;
     let ext_value = root_extension_value(root);
-    let mat_values: Vec<(usize, &Value)> = root
-        .materials
-        .iter()
-        .enumerate()
-        .filter_map(|(i, m)| material_extension_value(m).map(|v| (i, v)))
-        .collect();
-    if ext_value.is_none() && mat_values.is_empty() {
+    let bound = bound_primitive_values(root);
+    if ext_value.is_none() && bound.is_empty() {
         return;
     }
     if !root.extensions_used.iter().any(|e| e == EXTENSION_NAME) {
@@ -494,38 +491,19 @@ fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
     }
     let exts = Ptr::ROOT.key("extensions");
     let ext_ptr = exts.key(EXTENSION_NAME);
-    let mut textures: Vec<Option<NeuralTexture>> = Vec::new();
-    let mut renderers: Vec<Option<Renderer>> = Vec::new();
-    match ext_value {
-        None => ctx.report(
-            "JSON_SCHEMA",
-            &exts,
-            format!("materials use `{EXTENSION_NAME}` but the root has no such extension object"),
-        ),
-        Some(Value::Object(obj)) => {
-            match obj.get("version").map(Value::as_u64) {
-                None | Some(None) => {
-                    return ctx.report(
-                        "JSON_SCHEMA",
-                        &ext_ptr.key("version"),
-                        "version must be a non-negative integer",
-                    )
-                }
-                Some(Some(v)) if v != u64::from(model::VERSION) => {
-                    return ctx.report(
-                        "VERSION_UNSUPPORTED",
-                        &ext_ptr.key("version"),
-                        format!(
-                            "version {v} is not supported (this validator knows version {})",
-                            model::VERSION
-                        ),
-                    )
-                }
-                _ => {}
-            }
-            textures = array_of(ctx, obj.get("neuralTextures"), &ext_ptr, "neuralTextures");
-            renderers = array_of(ctx, obj.get("renderers"), &ext_ptr, "renderers");
+    let obj = match ext_value {
+        None => {
+            ctx.report(
+                "JSON_SCHEMA",
+                &exts,
+                format!(
+                    "mesh primitives use `{EXTENSION_NAME}` but the root has no such extension object"
+                ),
+            );
+            // The indices name nothing; the checks that do not need the root still apply.
+            return check_primitives(ctx, root, &bound, None);
         }
+        Some(Value::Object(obj)) => obj,
         Some(_) => {
             return ctx.report(
                 "JSON_SCHEMA",
@@ -533,7 +511,31 @@ fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
                 "the extension object must be an object",
             )
         }
+    };
+    match obj.get("version").map(Value::as_u64) {
+        None | Some(None) => {
+            return ctx.report(
+                "JSON_SCHEMA",
+                &ext_ptr.key("version"),
+                "version must be a non-negative integer",
+            )
+        }
+        Some(Some(v)) if v != u64::from(model::VERSION) => {
+            return ctx.report(
+                "VERSION_UNSUPPORTED",
+                &ext_ptr.key("version"),
+                format!(
+                    "version {v} is not supported (this validator knows version {})",
+                    model::VERSION
+                ),
+            )
+        }
+        _ => {}
     }
+    let textures: Vec<Option<NeuralTexture>> =
+        array_of(ctx, obj.get("neuralTextures"), &ext_ptr, "neuralTextures");
+    let renderers: Vec<Option<Renderer>> =
+        array_of(ctx, obj.get("renderers"), &ext_ptr, "renderers");
     let tex_ptr = ext_ptr.key("neuralTextures");
     let mut texel_values = 0u64;
     for (i, t) in textures.iter().enumerate() {
@@ -548,7 +550,7 @@ fn extension_checks(ctx: &mut Ctx<'_>, doc: &Doc<'_>) {
             check_renderer(ctx, doc, r, &ren_ptr.index(i), &mut weight_elements);
         }
     }
-    check_materials(ctx, root, &mat_values, &textures, &renderers);
+    check_primitives(ctx, root, &bound, Some((&textures, &renderers)));
 }
 
 /// Deserializes each element of an optional array on its own, so one bad element does
@@ -945,52 +947,83 @@ fn check_renderer(
     }
 }
 
-fn check_materials(
+/// The neural textures and renderers of the root object (`None` where an element failed
+/// its schema check).
+type RootArrays<'a> = (&'a [Option<NeuralTexture>], &'a [Option<Renderer>]);
+
+/// The binding objects on mesh primitives: their schema, fallback material and texture
+/// coordinates, and, when the root object is there (`arrays`), their indices and pairing.
+fn check_primitives(
     ctx: &mut Ctx<'_>,
     root: &json::Root,
-    mats: &[(usize, &Value)],
-    textures: &[Option<NeuralTexture>],
-    renderers: &[Option<Renderer>],
+    bound: &[(usize, usize, &Value)],
+    arrays: Option<RootArrays<'_>>,
 ) {
-    let mp = Ptr::ROOT.key("materials");
-    let mut tex_coord_of: BTreeMap<usize, u32> = BTreeMap::new();
-    for &(i, v) in mats {
-        let p = mp.index(i);
+    let meshes = Ptr::ROOT.key("meshes");
+    let materials = Ptr::ROOT.key("materials");
+    // A fallback material shared by several bound primitives is reported once.
+    let mut reported_materials = BTreeSet::new();
+    for &(mi, pi, v) in bound {
+        let mp = meshes.index(mi);
+        let pp = mp.key("primitives");
+        let p = pp.index(pi);
         let ep = p.key("extensions");
         let ep = ep.key(EXTENSION_NAME);
-        let m: MaterialExtension = match deserialize(v) {
-            Ok(m) => m,
+        let prim = &root.meshes[mi].primitives[pi];
+        if let Some(problem) = fallback_problem(root, prim) {
+            match problem {
+                FallbackProblem::NoMaterial => ctx.report(
+                    "FALLBACK_MISSING",
+                    &p,
+                    format!("{problem}: a primitive with the extension needs an unlit fallback material"),
+                ),
+                FallbackProblem::NoBaseColorTexture(i) | FallbackProblem::NoUnlit(i) => {
+                    if reported_materials.insert(i) {
+                        let m = materials.index(i);
+                        let at = match problem {
+                            FallbackProblem::NoBaseColorTexture(_) => m.key("pbrMetallicRoughness"),
+                            _ => m,
+                        };
+                        ctx.report("FALLBACK_MISSING", &at, problem.to_string());
+                    }
+                }
+            }
+        }
+        let b: PrimitiveExtension = match deserialize(v) {
+            Ok(b) => b,
             Err(e) => {
                 ctx.report("JSON_SCHEMA", &ep, e);
                 continue;
             }
         };
-        tex_coord_of.insert(i, m.tex_coord);
-        if root.materials[i]
-            .pbr_metallic_roughness
-            .base_color_texture
-            .is_none()
-        {
+        let n = b.tex_coord;
+        let has = prim.attributes.keys().any(|k| {
+            matches!(k, json::validation::Checked::Valid(json::mesh::Semantic::TexCoords(t)) if *t == n)
+        });
+        if !has {
             ctx.report(
-                "FALLBACK_MISSING",
-                &p.key("pbrMetallicRoughness"),
-                "a material with the extension needs a baseColorTexture fallback",
+                "TEXCOORD_MISSING",
+                &p.key("attributes"),
+                format!("the binding addresses TEXCOORD_{n}, which this primitive lacks"),
             );
         }
-        let t = textures.get(m.neural_texture as usize);
-        let r = renderers.get(m.renderer as usize);
+        let Some((textures, renderers)) = arrays else {
+            continue;
+        };
+        let t = textures.get(b.neural_texture as usize);
+        let r = renderers.get(b.renderer as usize);
         if t.is_none() {
             ctx.report(
                 "INDEX_OUT_OF_RANGE",
                 &ep.key("neuralTexture"),
-                format!("neural texture {} does not exist", m.neural_texture),
+                format!("neural texture {} does not exist", b.neural_texture),
             );
         }
         if r.is_none() {
             ctx.report(
                 "INDEX_OUT_OF_RANGE",
                 &ep.key("renderer"),
-                format!("renderer {} does not exist", m.renderer),
+                format!("renderer {} does not exist", b.renderer),
             );
         }
         if let (Some(Some(t)), Some(Some(r))) = (t, r) {
@@ -1000,30 +1033,8 @@ fn check_materials(
                     &ep,
                     format!(
                         "neural texture {} has {} channels, renderer {} takes {}",
-                        m.neural_texture, t.channels, m.renderer, r.input_channels
+                        b.neural_texture, t.channels, b.renderer, r.input_channels
                     ),
-                );
-            }
-        }
-    }
-    let meshes = Ptr::ROOT.key("meshes");
-    for (mi, mesh) in root.meshes.iter().enumerate() {
-        let mp = meshes.index(mi);
-        let pp = mp.key("primitives");
-        for (pi, prim) in mesh.primitives.iter().enumerate() {
-            let Some(n) = prim.material.and_then(|m| tex_coord_of.get(&m.value())) else {
-                continue;
-            };
-            let has = prim
-                .attributes
-                .keys()
-                .any(|k| matches!(k, json::validation::Checked::Valid(json::mesh::Semantic::TexCoords(t)) if t == n));
-            if !has {
-                let ip = pp.index(pi);
-                ctx.report(
-                    "TEXCOORD_MISSING",
-                    &ip.key("attributes"),
-                    format!("the material's neural texture uses TEXCOORD_{n}, which this primitive lacks"),
                 );
             }
         }
@@ -1056,5 +1067,165 @@ mod tests {
             let r = validate_slice(input, None, &l);
             assert!(r.has_errors(), "{input:?}: {r:?}");
         }
+    }
+
+    /// One mesh with two quads bound to (texture 0, renderer 0) and (texture 1, renderer 1),
+    /// as GLB JSON (a `Value` to edit) and its BIN chunk.
+    fn two_bindings() -> (Value, Vec<u8>) {
+        use crate::asset::{AssetBuilder, MaterialDesc, NeuralTextureDesc, Node, Primitive};
+        use crate::asset::{RendererDesc, WrapMode};
+        use crate::exr_codec::{LevelCompression, TextureLevel};
+        use crate::model::{Architecture, DType};
+        let mut b = AssetBuilder::new();
+        let quad = |x: f32, material| Primitive {
+            positions: vec![[x, 0.0, 0.0], [x + 1.0, 0.0, 0.0], [x + 1.0, 1.0, 0.0]],
+            normals: None,
+            tex_coords: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0]],
+            indices: vec![0, 1, 2],
+            material: Some(material),
+        };
+        for _ in 0..2 {
+            let t = b.add_neural_texture(NeuralTextureDesc {
+                levels: vec![TextureLevel::zeros(2, 2, 3)],
+                wrap_s: WrapMode::Repeat,
+                wrap_t: WrapMode::Repeat,
+                view_dependence: None,
+                compression: LevelCompression::None,
+            });
+            let r = b.add_renderer(RendererDesc {
+                renderer: model::Renderer::new(Architecture::None, 3, 3),
+                tensors: Default::default(),
+                dtype: DType::F16,
+            });
+            b.add_material(MaterialDesc {
+                name: None,
+                neural_texture: t,
+                renderer: r,
+            });
+        }
+        let mesh = b.add_mesh(None, vec![quad(0.0, 0), quad(2.0, 1)]);
+        b.add_node(Node {
+            mesh: Some(mesh),
+            ..Node::default()
+        });
+        let c = b.build_container().unwrap();
+        (serde_json::to_value(&c.root).unwrap(), c.buffers[0].clone())
+    }
+
+    fn glb(v: &Value, bin: &[u8]) -> Vec<u8> {
+        crate::container::glb_bytes(&serde_json::to_vec(v).unwrap(), Some(bin)).unwrap()
+    }
+
+    #[test]
+    fn builder_binds_primitives_and_keeps_materials_plain() {
+        let (v, bin) = two_bindings();
+        for (i, m) in v["materials"].as_array().unwrap().iter().enumerate() {
+            let ext = m["extensions"].as_object().unwrap();
+            assert_eq!(
+                ext.keys().collect::<Vec<_>>(),
+                ["KHR_materials_unlit"],
+                "material {i}"
+            );
+            assert_eq!(m["pbrMetallicRoughness"]["baseColorTexture"]["index"], i);
+        }
+        for (i, p) in v["meshes"][0]["primitives"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .enumerate()
+        {
+            assert_eq!(p["material"], i);
+            let b = &p["extensions"][EXTENSION_NAME];
+            assert_eq!(
+                (&b["neuralTexture"], &b["renderer"]),
+                (&json_n(i), &json_n(i))
+            );
+            assert_eq!(b["texCoord"], 0);
+        }
+        let bytes = glb(&v, &bin);
+        let report = validate_slice(&bytes, None, &Limits::default());
+        assert!(report.issues.is_empty(), "{report:#?}");
+        let asset = crate::read_asset_from_slice(&bytes).unwrap();
+        let got: Vec<_> = asset.primitives[0]
+            .iter()
+            .map(|b| b.as_ref().map(|b| (b.neural_texture, b.renderer)))
+            .collect();
+        assert_eq!(got, [Some((0, 0)), Some((1, 1))]);
+        assert_eq!(asset.binding(0, 1).map(|b| b.renderer), Some(1));
+        assert!(asset.binding(0, 2).is_none() && asset.binding(1, 0).is_none());
+        // One fallback material per binding: the transitional per-material view agrees.
+        let by_material: Vec<_> = asset
+            .materials
+            .iter()
+            .map(|b| b.as_ref().map(|b| b.renderer))
+            .collect();
+        assert_eq!(by_material, [Some(0), Some(1)]);
+    }
+
+    fn json_n(i: usize) -> Value {
+        Value::from(i)
+    }
+
+    #[test]
+    fn primitives_sharing_a_fallback_keep_their_own_bindings() {
+        let (mut v, bin) = two_bindings();
+        v["meshes"][0]["primitives"][1]["material"] = json_n(0);
+        let bytes = glb(&v, &bin);
+        let report = validate_slice(&bytes, None, &Limits::default());
+        assert!(report.issues.is_empty(), "{report:#?}");
+        let asset = crate::read_asset_from_slice(&bytes).unwrap();
+        assert_eq!(asset.binding(0, 0).map(|b| b.renderer), Some(0));
+        assert_eq!(asset.binding(0, 1).map(|b| b.renderer), Some(1));
+        // Material 0 now stands for two different bindings, material 1 for none.
+        assert_eq!(asset.materials, [None, None]);
+    }
+
+    #[test]
+    fn binding_on_a_material_is_not_a_binding() {
+        // Earlier drafts put the object on the material; version 1 defines it on primitives
+        // only, so there it is an unknown material extension and binds nothing.
+        let (mut v, bin) = two_bindings();
+        let moved = v["meshes"][0]["primitives"][0]["extensions"].take();
+        v["materials"][0]["extensions"][EXTENSION_NAME] = moved[EXTENSION_NAME].clone();
+        if let Some(p) = v["meshes"][0]["primitives"][0].as_object_mut() {
+            p.remove("extensions");
+        }
+        let bytes = glb(&v, &bin);
+        assert!(validate_slice(&bytes, None, &Limits::default())
+            .issues
+            .is_empty());
+        let asset = crate::read_asset_from_slice(&bytes).unwrap();
+        assert!(asset.binding(0, 0).is_none());
+        assert_eq!(asset.binding(0, 1).map(|b| b.renderer), Some(1));
+    }
+
+    #[test]
+    fn primitive_checks_point_at_the_primitive_and_its_material() {
+        let (mut v, bin) = two_bindings();
+        v["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["texCoord"] = json_n(2);
+        v["meshes"][0]["primitives"][0]["extensions"][EXTENSION_NAME]["renderer"] = json_n(7);
+        v["materials"][0]["extensions"] = Value::Object(Default::default());
+        if let Some(p) = v["meshes"][0]["primitives"][1].as_object_mut() {
+            p.remove("material");
+        }
+        let report = validate_slice(&glb(&v, &bin), None, &Limits::default());
+        let got: BTreeSet<(&str, &str)> = report
+            .issues
+            .iter()
+            .map(|i| (i.code, i.pointer.as_str()))
+            .collect();
+        let want: BTreeSet<(&str, &str)> = [
+            ("TEXCOORD_MISSING", "/meshes/0/primitives/0/attributes"),
+            (
+                "INDEX_OUT_OF_RANGE",
+                "/meshes/0/primitives/0/extensions/EXT_deferred_neural_rendering/renderer",
+            ),
+            ("FALLBACK_MISSING", "/materials/0"),
+            ("FALLBACK_MISSING", "/meshes/0/primitives/1"),
+        ]
+        .into_iter()
+        .collect();
+        assert_eq!(got, want, "{report:#?}");
+        assert!(crate::read_asset_from_slice(&glb(&v, &bin)).is_err());
     }
 }

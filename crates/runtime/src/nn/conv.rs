@@ -23,7 +23,10 @@ fn map_stride2(act: Act, src: &[f32], dst: &mut [f32]) -> usize {
     let (dst, src) = (&mut dst[..n], &src[..(2 * n).min(src.len())]);
     // `chunks(2)` (not `step_by(2)`) so the loops vectorise as de-interleaves.
     match act {
-        Act::Identity => dst.iter_mut().zip(src.chunks(2)).for_each(|(d, s)| *d = s[0]),
+        Act::Identity => dst
+            .iter_mut()
+            .zip(src.chunks(2))
+            .for_each(|(d, s)| *d = s[0]),
         Act::LeakyRelu(sl) => dst
             .iter_mut()
             .zip(src.chunks(2))

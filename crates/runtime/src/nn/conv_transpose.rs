@@ -187,8 +187,14 @@ impl TconvLayout {
                     let cols = (ow - px).div_ceil(2);
                     let s = &src[y * self.pitch..y * self.pitch + cols];
                     match act {
-                        Act::Identity => drow[px..].chunks_mut(2).zip(s).for_each(|(d, &v)| d[0] = v + b),
-                        _ => drow[px..].chunks_mut(2).zip(s).for_each(|(d, &v)| d[0] = act.apply(v + b)),
+                        Act::Identity => drow[px..]
+                            .chunks_mut(2)
+                            .zip(s)
+                            .for_each(|(d, &v)| d[0] = v + b),
+                        _ => drow[px..]
+                            .chunks_mut(2)
+                            .zip(s)
+                            .for_each(|(d, &v)| d[0] = act.apply(v + b)),
                     }
                 }
             });

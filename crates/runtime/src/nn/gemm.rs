@@ -4,7 +4,10 @@
 //! Two entry points:
 //! - [`gemm_nn`]: `C = A B` with A pre-packed ([`PackedA`], the weights) and B given as rows that
 //!   are each contiguous along N at arbitrary offsets into one buffer. A convolution passes the
-//!   planes of its (padded) input shifted by each kernel tap, so no im2col matrix is ever built.
+//!   planes of its (padded) input shifted by each kernel tap, so no im2col matrix is ever
+//!   materialised: B is copied KC x NC block by block (256 x 256, L2-sized) into NR-wide strips
+//!   that the micro-kernel streams from L1 (BLIS loop order), which is what the thin
+//!   convolution shapes (M = 3..64, N = 10^4..10^5) need to keep the FMA units busy.
 //! - [`gemm_nt`]: `C = A Bᵀ` with both operands given as rows contiguous along K (the pixels):
 //!   the weight gradient of a convolution, a dot product per (output, input, tap).
 //!
@@ -17,6 +20,7 @@
 //! safe scalar twin that [`set_simd_cap`] can force, so tests run both paths.
 #![allow(unsafe_code)]
 
+use super::tensor::pool;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -30,12 +34,14 @@ const KC: usize = 256;
 const NC: usize = 256;
 /// Rows of A per block of [`gemm_nn`] (MC x KC floats, in L2).
 const MC: usize = 72;
-/// A rows per micro-tile of [`gemm_nt`].
-const RT: usize = 4;
+/// A rows per micro-tile of [`gemm_nt`] (at most; AVX2 and scalar use 4 x 3 tiles, AVX-512
+/// 8 x 2: each B vector is reused 8 times, which keeps the B stream from L2 at ~16 bytes per
+/// cycle).
+const RT: usize = 8;
 /// B rows per micro-tile of [`gemm_nt`].
 const CT: usize = 3;
-/// K block of [`gemm_nt`].
-const KC_NT: usize = 1024;
+/// A-tile values per K block of [`gemm_nt`] (`rows x kc`, 16 KB: stays in L1).
+const NT_TILE_VALUES: usize = 4096;
 /// Packed values per parallel task of [`PackedA::from_offsets`].
 const PAR_MIN_PACK: usize = 1 << 15;
 /// Below this many multiply-adds a product runs on the calling thread.
@@ -131,7 +137,8 @@ impl PackedA {
             "PackedA: A out of bounds"
         );
         let tiles = m.div_ceil(MR);
-        let mut data = vec![0.0f32; tiles * k * MR];
+        // Every value is written below (rows past M as zeros), so pooled scratch will do.
+        let mut data = pool::scratch(tiles * k * MR);
         if k > 0 {
             data.par_chunks_mut(k * MR)
                 .with_min_len(PAR_MIN_PACK.div_ceil(k * MR))
@@ -144,6 +151,7 @@ impl PackedA {
                             // `w.len()` by the assert above.
                             *d = unsafe { *w.get_unchecked(ro + c) };
                         }
+                        dst[r.len()..].fill(0.0);
                     }
                 });
         }
@@ -183,6 +191,12 @@ impl PackedA {
     /// Panel of tile `t` for k in `k0..k0 + kc`.
     fn panel(&self, t: usize, k0: usize, kc: usize) -> &[f32] {
         &self.data[t * self.k * MR + k0 * MR..][..kc * MR]
+    }
+}
+
+impl Drop for PackedA {
+    fn drop(&mut self) {
+        pool::recycle(std::mem::take(&mut self.data));
     }
 }
 
@@ -425,6 +439,7 @@ impl NnCtx<'_> {
                 }
             }
         }
+        pool::recycle(pack_store);
     }
 
     /// Copies B rows `k0..k0 + kc`, columns `j..j + ncw` into NR-wide strips
@@ -487,7 +502,15 @@ impl NnCtx<'_> {
 
     /// `g` (2 or 4) MR x NR tiles from `g` consecutive packed B strips (AVX-512; `b` holds the
     /// `g` strips, `kc * NR` values each).
-    fn kernel_group(&self, mv: usize, g: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [[f32; MR * NR]; 4]) {
+    fn kernel_group(
+        &self,
+        mv: usize,
+        g: usize,
+        kc: usize,
+        a: &[f32],
+        b: &[f32],
+        out: &mut [[f32; MR * NR]; 4],
+    ) {
         assert!(a.len() >= kc * MR && b.len() >= g * kc * NR && (g == 2 || (g == 4 && mv <= 3)));
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
@@ -603,15 +626,22 @@ impl NtCtx<'_> {
         let mut out = [[0.0f32; CT]; RT];
         let mut ao = [0usize; RT];
         let mut bo = [0usize; CT];
-        for k0 in (0..self.k).step_by(KC_NT) {
-            let kc = KC_NT.min(self.k - k0);
-            for r0 in (0..nrows).step_by(RT) {
-                let rv = RT.min(nrows - r0);
+        // AVX-512: 8 x 2 tiles (16 accumulators; 8 x 3 makes LLVM spill them); else 4 x 3.
+        let (rt, ct) = if self.level == SimdLevel::Avx512 {
+            (RT, 2)
+        } else {
+            (4, CT)
+        };
+        let kc_max = NT_TILE_VALUES / rt;
+        for k0 in (0..self.k).step_by(kc_max) {
+            let kc = kc_max.min(self.k - k0);
+            for r0 in (0..nrows).step_by(rt) {
+                let rv = rt.min(nrows - r0);
                 for (r, o) in ao.iter_mut().enumerate().take(rv) {
                     *o = self.a_rows[blk.i0 + r0 + r] + k0;
                 }
-                for c0 in (0..width).step_by(CT) {
-                    let cv = CT.min(width - c0);
+                for c0 in (0..width).step_by(ct) {
+                    let cv = ct.min(width - c0);
                     for (cc, o) in bo.iter_mut().enumerate().take(cv) {
                         *o = self.b_rows[blk.j0 + c0 + cc] + k0;
                     }
@@ -651,6 +681,18 @@ impl NtCtx<'_> {
             // `ao`/`bo` hold `rv`/`cv` entries.
             unsafe {
                 match (rv, cv) {
+                    (8, 3) => avx512::kernel_nt::<8, 3>(kc, a, ao, b, bo, out),
+                    (8, 2) => avx512::kernel_nt::<8, 2>(kc, a, ao, b, bo, out),
+                    (8, 1) => avx512::kernel_nt::<8, 1>(kc, a, ao, b, bo, out),
+                    (7, 3) => avx512::kernel_nt::<7, 3>(kc, a, ao, b, bo, out),
+                    (7, 2) => avx512::kernel_nt::<7, 2>(kc, a, ao, b, bo, out),
+                    (7, 1) => avx512::kernel_nt::<7, 1>(kc, a, ao, b, bo, out),
+                    (6, 3) => avx512::kernel_nt::<6, 3>(kc, a, ao, b, bo, out),
+                    (6, 2) => avx512::kernel_nt::<6, 2>(kc, a, ao, b, bo, out),
+                    (6, 1) => avx512::kernel_nt::<6, 1>(kc, a, ao, b, bo, out),
+                    (5, 3) => avx512::kernel_nt::<5, 3>(kc, a, ao, b, bo, out),
+                    (5, 2) => avx512::kernel_nt::<5, 2>(kc, a, ao, b, bo, out),
+                    (5, 1) => avx512::kernel_nt::<5, 1>(kc, a, ao, b, bo, out),
                     (4, 3) => avx512::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
                     (4, 2) => avx512::kernel_nt::<4, 2>(kc, a, ao, b, bo, out),
                     (4, 1) => avx512::kernel_nt::<4, 1>(kc, a, ao, b, bo, out),
@@ -847,7 +889,6 @@ mod avx2 {
 // AVX-512 intrinsics and `target_feature(enable = "avx512f")` are stable since Rust 1.89;
 // the workspace's declared rust-version (1.85) must be raised to 1.89 for this module.
 #[cfg(target_arch = "x86_64")]
-#[allow(clippy::incompatible_msrv)]
 mod avx512 {
     use super::{CT, MR, NR, RT};
     use std::arch::x86_64::*;
@@ -878,7 +919,12 @@ mod avx512 {
     /// # Safety
     /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `b.len() >= G * kc * NR`, `G <= 4`.
     #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel_nn_group<const R: usize, const G: usize>(kc: usize, a: &[f32], b: &[f32], out: &mut [[f32; MR * NR]; 4]) {
+    pub unsafe fn kernel_nn_group<const R: usize, const G: usize>(
+        kc: usize,
+        a: &[f32],
+        b: &[f32],
+        out: &mut [[f32; MR * NR]; 4],
+    ) {
         let mut acc = [[_mm512_setzero_ps(); G]; R];
         let mut ap = a.as_ptr();
         let mut bp = [b.as_ptr(); G];
@@ -936,14 +982,15 @@ mod avx512 {
         let mut k = 0;
         while k < k16 {
             // SAFETY: `k + 16 <= kc`; every row has `kc` readable values by the contract.
-            let mut av = [_mm512_setzero_ps(); R];
-            for r in 0..R {
-                av[r] = _mm512_loadu_ps(pa[r].add(k));
-            }
+            // B vectors in registers, A one row at a time: up to 24 accumulators + 3 + 1.
+            let mut bv = [_mm512_setzero_ps(); C];
             for c in 0..C {
-                let bv = _mm512_loadu_ps(pb[c].add(k));
-                for r in 0..R {
-                    acc[r][c] = _mm512_fmadd_ps(av[r], bv, acc[r][c]);
+                bv[c] = _mm512_loadu_ps(pb[c].add(k));
+            }
+            for r in 0..R {
+                let av = _mm512_loadu_ps(pa[r].add(k));
+                for c in 0..C {
+                    acc[r][c] = _mm512_fmadd_ps(av, bv[c], acc[r][c]);
                 }
             }
             k += 16;
