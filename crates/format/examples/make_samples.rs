@@ -1011,6 +1011,10 @@ fn write_index(dir: &Path, samples: &[Sample]) -> Res<()> {
          must produce (`[]` for valid files, which must also have no warnings and round-trip\n\
          byte-identically). `dnr validate` exits 1 on the invalid files except those whose only\n\
          codes are warnings (`TEXCOORD_MISSING`, `TEXTURE_LEVEL_ORDER`), where it exits 0.\n\n\
+         The bindings live on mesh primitives\n\
+         (`meshes[m].primitives[p].extensions.EXT_deferred_neural_rendering`); fallback materials\n\
+         carry only `KHR_materials_unlit`, and the Khronos glTF-Validator reports no error and no\n\
+         warning on any valid sample (`tests/scripts/gltf_validator.mjs`, no exception list).\n\n\
          | file | exercises | expected codes |\n|---|---|---|\n",
     );
     for s in samples {

@@ -1023,7 +1023,7 @@ impl AssetBuilder {
             return Err(what("attribute counts differ or are zero"));
         }
         if p.indices.is_empty()
-            || p.indices.len() % 3 != 0
+            || !p.indices.len().is_multiple_of(3)
             || p.indices.iter().any(|&i| i as usize >= n)
         {
             return Err(what("indices are not a triangle list into the vertices"));

@@ -139,7 +139,7 @@ pub fn parse_glb<'a>(bytes: &'a [u8], limits: &Limits) -> Result<Glb<'a>, Proble
                 format!("chunk {index} declares {len} bytes past the end of the file"),
             ));
         };
-        if len % 4 != 0 {
+        if !len.is_multiple_of(4) {
             return Err(Problem::invalid(
                 "GLB_CHUNK_INVALID",
                 format!("chunk {index} length {len} is not a multiple of 4"),

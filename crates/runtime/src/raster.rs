@@ -45,7 +45,8 @@ use crate::scene::{Primitive, Scene};
 pub const SUBPIXEL_BITS: u32 = 8;
 /// Guard band around the image in pixels; geometry beyond it is clipped away in 3D.
 pub const GUARD_BAND: f64 = (1u64 << 20) as f64;
-/// Largest image side the rasteriser draws (larger cameras give an empty G-buffer).
+/// Largest image side the rasteriser draws (larger cameras give an empty 0 x 0 G-buffer):
+/// keeps image plus guard band inside the range where edge functions are exact in i64.
 pub const MAX_IMAGE_SIDE: usize = 1 << 20;
 /// Near plane distance as a fraction of the distance from the eye to the nearest vertex.
 pub const NEAR_RELATIVE: f64 = 1e-5;
@@ -69,8 +70,15 @@ pub fn rasterize(scene: &Scene, camera: &Camera) -> GBuffer {
 }
 
 /// Like [`rasterize`], reusing `gbuf`'s allocations (it is resized to the camera's size).
+///
+/// A camera with a side above [`MAX_IMAGE_SIDE`] gives an empty 0 x 0 G-buffer; one with
+/// non-finite pose or non-positive focal lengths an all-uncovered one.
 pub fn rasterize_into(scene: &Scene, camera: &Camera, gbuf: &mut GBuffer) {
     let (w, h) = (camera.width as usize, camera.height as usize);
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        gbuf.reset(0, 0);
+        return;
+    }
     let Some(prep) = Prepared::new(scene, camera) else {
         gbuf.reset(w, h);
         return;
@@ -110,9 +118,13 @@ pub struct CoverageCounts {
     pub back: Vec<u32>,
 }
 
-/// Counts coverage hits per pixel; see [`CoverageCounts`].
+/// Counts coverage hits per pixel; see [`CoverageCounts`]. Empty (0 x 0) for a camera side
+/// above [`MAX_IMAGE_SIDE`].
 pub fn coverage_counts(scene: &Scene, camera: &Camera) -> CoverageCounts {
     let (w, h) = (camera.width as usize, camera.height as usize);
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        return CoverageCounts::default();
+    }
     let mut c = CoverageCounts {
         width: w,
         height: h,

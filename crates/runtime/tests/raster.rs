@@ -348,10 +348,17 @@ fn closed_sphere_is_covered_once_by_front_and_once_by_back_faces() {
             assert_eq!(g.coverage[i] == 1.0, c.front[i] > 0);
             inside_pixels += c.front[i] as usize;
             if g.coverage[i] == 1.0 {
-                // The visible hit is the front face: its normal (the local position) points
-                // back at the eye.
-                let n = Vec3::from(g.view_dir[i]);
-                assert!(n.length() > 0.999);
+                // The depth test keeps the near side of the sphere: there the eye-to-surface
+                // direction points against the outward normal (the local position itself).
+                let (p, t) = (g.prim[i] as usize, g.tri[i] as usize);
+                let n = v[idx[3 * t] as usize]
+                    + v[idx[3 * t + 1] as usize]
+                    + v[idx[3 * t + 2] as usize];
+                assert_eq!(p, 0);
+                assert!(
+                    Vec3::from(g.view_dir[i]).dot(n.normalize()) < 0.05,
+                    "pose {pose} pixel {i} shows the far side"
+                );
             }
         }
     }
@@ -684,6 +691,12 @@ fn hostile_geometry_is_skipped_not_fatal() {
         rasterize(&scene(vec![prim.clone()]), &bad_cam).covered_count(),
         0
     );
+    bad_cam = cam;
+    bad_cam.width = u32::MAX; // beyond MAX_IMAGE_SIDE: empty, and no giant allocation
+    assert!(rasterize(&scene(vec![prim.clone()]), &bad_cam).is_empty());
+    assert!(coverage_counts(&scene(vec![prim.clone()]), &bad_cam)
+        .front
+        .is_empty());
     bad_cam = cam;
     bad_cam.width = 0;
     assert!(rasterize(&scene(vec![prim.clone()]), &bad_cam).is_empty());

@@ -50,11 +50,10 @@ fn json(buffer: &str, tweak: (&str, &str)) -> String {
     {{"bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC2"}},
     {{"bufferView": 3, "componentType": 5123, "count": 4, "type": "SCALAR"}}
   ],
-  "materials": [
-    {{"extensions": {{"EXT_deferred_neural_rendering": {{"neuralTexture": 0, "renderer": 0, "texCoord": 1}}}}}}
-  ],
+  "materials": [{{"name": "fallback"}}],
   "meshes": [{{"primitives": [
-    {{"attributes": {{"POSITION": 0, "TEXCOORD_0": 1, "TEXCOORD_1": 2}}, "indices": 3, "mode": 5, "material": 0}},
+    {{"attributes": {{"POSITION": 0, "TEXCOORD_0": 1, "TEXCOORD_1": 2}}, "indices": 3, "mode": 5, "material": 0,
+     "extensions": {{"EXT_deferred_neural_rendering": {{"neuralTexture": 0, "renderer": 1, "texCoord": 1}}}}}},
     {{"attributes": {{"POSITION": 0, "TEXCOORD_0": 1}}, "mode": 0}},
     {{"attributes": {{"POSITION": 0}}, "mode": 6}}
   ]}}],
@@ -148,6 +147,7 @@ fn check_scene(s: &dnr_runtime::scene::Scene) {
         ]
     );
     assert_eq!(strip.material, Some(0));
+    assert_eq!(strip.neural, Some((0, 1)));
     assert_eq!(strip.node, Some(1));
     assert_eq!(strip.source, Some((0, 0)));
     assert_eq!(strip.positions[3], Vec3::new(1.0, 1.0, 0.0));
@@ -156,6 +156,7 @@ fn check_scene(s: &dnr_runtime::scene::Scene) {
     assert!(fan.uvs.is_empty() && !fan.has_uvs());
     assert_eq!(fan.tex_coord, 0);
     assert_eq!(fan.material, None);
+    assert_eq!(fan.neural, None);
     assert_eq!(fan.source, Some((0, 2)));
 }
 
@@ -267,7 +268,17 @@ fn broken_files_are_errors_naming_the_problem() {
     // Malformed texCoord.
     let bad_tc = json(glb_buffer(), (r#""texCoord": 1"#, r#""texCoord": "one""#));
     let e = from_gltf_slice(&glb(&bad_tc, &payload())).unwrap_err();
-    assert!(matches!(e, SceneError::Material { material: 0, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            SceneError::Primitive {
+                mesh: 0,
+                primitive: 0,
+                ..
+            }
+        ) && e.to_string().contains("texCoord"),
+        "{e}"
+    );
     // Wrong POSITION type.
     let vec2 = json(
         glb_buffer(),

@@ -886,8 +886,8 @@ mod avx2 {
     }
 }
 
-// AVX-512 intrinsics and `target_feature(enable = "avx512f")` are stable since Rust 1.89;
-// the workspace's declared rust-version (1.85) must be raised to 1.89 for this module.
+// AVX-512 intrinsics and `target_feature(enable = "avx512f")` are stable since Rust 1.89
+// (the workspace's rust-version).
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use super::{CT, MR, NR, RT};
