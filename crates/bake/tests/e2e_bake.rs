@@ -141,7 +141,7 @@ fn sigkill_and_resume_reaches_the_straight_result() {
         c.arg(duck_tiny())
             .arg("-o")
             .arg(out)
-            .args(["--preset", "fast", "--steps", "240", "--threads", "2", "--seed", "5"])
+            .args(["--preset", "fast", "--steps", "500", "--threads", "2", "--seed", "5"])
             .args(["--checkpoint-every", "0.3", "--eval-every", "0"]);
         c
     };
@@ -156,7 +156,7 @@ fn sigkill_and_resume_reaches_the_straight_result() {
     for round in 0..60 {
         let mut child = args(&out).arg("--resume").stderr(std::process::Stdio::null()).spawn().unwrap();
         if kills < 20 {
-            let wait_ms = rng.random_range(200..1500);
+            let wait_ms = rng.random_range(50..650);
             std::thread::sleep(std::time::Duration::from_millis(wait_ms));
             if child.try_wait().unwrap().is_none() {
                 child.kill().unwrap(); // SIGKILL

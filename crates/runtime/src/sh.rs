@@ -109,10 +109,8 @@ pub fn check_modulate(
     if degree > MAX_DEGREE {
         return Err(ShError::Degree(degree));
     }
-    if view_dirs != pixels
-        || (pixels == 0 && features != 0)
-        || (pixels != 0 && features % pixels != 0)
-    {
+    // `is_multiple_of(0)` holds only for 0: no pixels means no features.
+    if view_dirs != pixels || !features.is_multiple_of(pixels) {
         return Err(ShError::Shape {
             features,
             pixels,
