@@ -26,6 +26,9 @@ enum Command {
     Render(cmd::render::Args),
     /// Evaluate an asset against a capture's held-out photographs (PSNR, SSIM, MSE).
     Eval(cmd::eval::Args),
+    /// Benchmarks: `train` (training step and inference vs the sgemm peak and PyTorch),
+    /// `render ASSET` (ms per frame).
+    Bench(cmd::bench::Args),
 }
 
 fn main() -> ExitCode {
@@ -36,6 +39,7 @@ fn main() -> ExitCode {
         // --- render / eval (renderer engineer) ---
         Command::Render(args) => cmd::render::run(&args),
         Command::Eval(args) => cmd::eval::run(&args),
+        Command::Bench(args) => cmd::bench::run(&args),
     };
     match result {
         Ok(code) => code,

@@ -154,12 +154,6 @@ pub struct Asset {
     /// Each mesh primitive's binding object, indexed `[mesh][primitive]` like the glTF
     /// `meshes[m].primitives[p]` (`None` for primitives without the extension).
     pub primitives: Vec<Vec<Option<PrimitiveExtension>>>,
-    /// Transitional, derived from `primitives` for code that still binds by material: for
-    /// each glTF material, the binding shared by every primitive that uses it, or `None` when
-    /// no primitive uses it, one of them is unbound, or their bindings differ. Exact for
-    /// assets written by [`AssetBuilder`] (one fallback material per binding). New code
-    /// reads [`Asset::binding`] / `primitives`; this field will be removed.
-    pub materials: Vec<Option<PrimitiveExtension>>,
 }
 
 impl Asset {
@@ -236,32 +230,6 @@ pub fn fallback_problem(root: &json::Root, p: &json::mesh::Primitive) -> Option<
         .as_ref()
         .is_some_and(|e| e.unlit.is_some() || e.others.contains_key("KHR_materials_unlit"));
     (!unlit).then_some(FallbackProblem::NoUnlit(i))
-}
-
-/// The transitional per-material view of the bindings (see [`Asset::materials`]).
-fn bindings_by_material(
-    root: &json::Root,
-    primitives: &[Vec<Option<PrimitiveExtension>>],
-) -> Vec<Option<PrimitiveExtension>> {
-    let key = |b: &Option<PrimitiveExtension>| {
-        b.as_ref()
-            .map(|b| (b.neural_texture, b.renderer, b.tex_coord))
-    };
-    // None: no primitive seen yet; Some(None): conflicting or unbound use.
-    let mut seen: Vec<Option<Option<PrimitiveExtension>>> = vec![None; root.materials.len()];
-    for (mesh, row) in root.meshes.iter().zip(primitives) {
-        for (p, b) in mesh.primitives.iter().zip(row) {
-            let Some(slot) = p.material.and_then(|m| seen.get_mut(m.value())) else {
-                continue;
-            };
-            match slot {
-                None => *slot = Some(b.clone()),
-                Some(prev) if key(prev) != key(b) => *slot = Some(None),
-                Some(_) => {}
-            }
-        }
-    }
-    seen.into_iter().map(Option::flatten).collect()
 }
 
 /// Reads and decodes an asset file (`.glb` or `.gltf`) under default [`Limits`].
@@ -349,7 +317,6 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             }
         }
     }
-    let materials = bindings_by_material(root, &primitives);
     let Some(value) = root_extension_value(root) else {
         if any_bound {
             return Err(Error::invalid(
@@ -362,7 +329,6 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             textures: Vec::new(),
             renderers: Vec::new(),
             primitives,
-            materials,
         });
     };
     if let Some(v) = value.get("version").and_then(Value::as_u64) {
@@ -563,7 +529,6 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
         textures,
         renderers,
         primitives,
-        materials,
     })
 }
 

@@ -13,6 +13,8 @@ use rand_chacha::ChaCha8Rng;
 use std::fmt;
 use std::time::Instant;
 
+pub mod step;
+
 /// The CPU-sized U-Net widths.
 pub const CPU_WIDTHS: [usize; 5] = [16, 32, 64, 128, 128];
 /// The paper's U-Net widths.
@@ -72,7 +74,8 @@ fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
 /// One measured configuration.
 #[derive(Clone, Debug)]
 pub struct BenchRow {
-    /// "train" or "infer".
+    /// "train" (U-Net forward, backward, Adam), "step" (the baker's whole step, texture
+    /// included) or "infer".
     pub kind: &'static str,
     /// U-Net widths.
     pub widths: Vec<usize>,
@@ -170,6 +173,17 @@ pub fn run_standard(reps: usize) -> BenchReport {
     for widths in [&CPU_WIDTHS[..], &PAPER_WIDTHS[..]] {
         for size in [128, 256] {
             rows.push(bench_train(widths, size, reps));
+            // The baker's whole step: texture sampling, SH, U-Net, losses, texture update.
+            let w32: Vec<u32> = widths.iter().map(|&w| w as u32).collect();
+            let (ms_min, ms_median) = step::bench_trainer_step(&w32, size, reps);
+            rows.push(BenchRow {
+                kind: "step",
+                widths: widths.to_vec(),
+                size,
+                ms_min,
+                ms_median,
+                gflop: 3.0 * bench_params(widths).flops(size, size) as f64 * 1e-9,
+            });
         }
         for size in [256, 512] {
             rows.push(bench_infer(widths, size, reps));

@@ -1153,13 +1153,6 @@ mod tests {
         assert_eq!(got, [Some((0, 0)), Some((1, 1))]);
         assert_eq!(asset.binding(0, 1).map(|b| b.renderer), Some(1));
         assert!(asset.binding(0, 2).is_none() && asset.binding(1, 0).is_none());
-        // One fallback material per binding: the transitional per-material view agrees.
-        let by_material: Vec<_> = asset
-            .materials
-            .iter()
-            .map(|b| b.as_ref().map(|b| b.renderer))
-            .collect();
-        assert_eq!(by_material, [Some(0), Some(1)]);
     }
 
     fn json_n(i: usize) -> Value {
@@ -1176,8 +1169,6 @@ mod tests {
         let asset = crate::read_asset_from_slice(&bytes).unwrap();
         assert_eq!(asset.binding(0, 0).map(|b| b.renderer), Some(0));
         assert_eq!(asset.binding(0, 1).map(|b| b.renderer), Some(1));
-        // Material 0 now stands for two different bindings, material 1 for none.
-        assert_eq!(asset.materials, [None, None]);
     }
 
     #[test]

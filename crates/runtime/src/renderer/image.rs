@@ -4,7 +4,8 @@
 /// straight (not premultiplied) alpha in `[0, 1]`, row-major HWC, row 0 at the top.
 ///
 /// This is the *neural layer* `N` of the spec ("Compositing Several Renderers"): pixels of
-/// materials that do not use the extension, and background pixels no renderer reaches,
+/// primitives without an `EXT_deferred_neural_rendering` binding, and background pixels no
+/// renderer reaches,
 /// are `(0, 0, 0, 0)`; a viewer composites it over the rest of its image.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct RgbaImage {

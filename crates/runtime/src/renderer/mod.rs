@@ -7,22 +7,24 @@
 //!
 //! What a frame does (spec "Evaluating a Frame" and "Compositing Several Renderers"):
 //!
-//! 1. Each covered pixel belongs to the material of its visible primitive. Pixels of
-//!    materials with the extension belong to that material's renderer; pixels of other
-//!    materials are *core* pixels; uncovered pixels are *background*.
+//! 1. Each covered pixel belongs to its visible primitive. Pixels of primitives with an
+//!    `EXT_deferred_neural_rendering` binding belong to that binding's renderer (pixels are
+//!    grouped by renderer, never by material: primitives sharing one fallback material keep
+//!    their own bindings); pixels of unbound primitives are *core* pixels; uncovered pixels
+//!    are *background*.
 //! 2. Each renderer that owns at least one pixel runs once, on a feature image in which
-//!    only its own pixels are covered: `F` summed over the levels of the pixel's material's
-//!    neural texture, multiplied by the spherical harmonics of the local view direction
-//!    where the texture has `viewDependence`. Renderers that own no pixel do no work; `none`
-//!    runs no network; `none` and `mlp` touch only their own pixels.
+//!    only its own pixels are covered: `F` summed over the levels of the neural texture of
+//!    the pixel's primitive's binding, multiplied by the spherical harmonics of the local
+//!    view direction where the texture has `viewDependence`. Renderers that own no pixel do
+//!    no work; `none` runs no network; `none` and `mlp` touch only their own pixels.
 //! 3. Output: at a renderer's own pixels its colour and alpha (alpha = coverage = 1 for
 //!    3-channel outputs, `(t3 + 1) / 2` for 4-channel outputs); at core pixels
 //!    `(0, 0, 0, 0)`; at background pixels the 4-channel `unet` outputs composited
 //!    source-over in ascending renderer index. Non-finite outputs become 0.
 //!
 //! The result is the neural layer ([`RgbaImage`]: sRGB-encoded colour, straight alpha). The
-//! CPU renderer does not shade core materials: a viewer composites the layer over its own
-//! image of everything else.
+//! CPU renderer does not shade core materials (neither unbound primitives' materials nor
+//! the fallbacks): a viewer composites the layer over its own image of everything else.
 //!
 //! Errors are typed ([`RendererError`]); a bad asset or G-buffer never panics.
 
@@ -39,7 +41,7 @@ use crate::gbuffer::GBuffer;
 use crate::network::NetworkError;
 use crate::nn::NnError;
 use crate::raster::{self, rasterize};
-use crate::scene::{from_gltf_slice, Scene, SceneError};
+use crate::scene::{from_gltf_slice, Primitive, Scene, SceneError};
 use crate::sh;
 use crate::texture::{Level, Pyramid, TextureError, Wrap};
 
@@ -76,12 +78,14 @@ pub enum RendererError {
         /// What is wrong.
         error: NetworkError,
     },
-    /// A material's extension object names a missing texture or renderer, or pairs a
+    /// A scene primitive's binding names a missing neural texture or renderer, or pairs a
     /// texture and a renderer whose channel counts differ.
-    #[error("material {index}: {reason}")]
-    Material {
-        /// Index in the glTF `materials`.
-        index: usize,
+    #[error("{}: {reason}", primitive_name(*primitive, *gltf))]
+    Binding {
+        /// Index in [`Scene::primitives`].
+        primitive: usize,
+        /// The glTF `(mesh, primitive)` it was loaded from, when known.
+        gltf: Option<(u32, u32)>,
         /// What is wrong.
         reason: String,
     },
@@ -126,9 +130,9 @@ struct RendererSlot {
 /// What draws a scene primitive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum PrimOwner {
-    /// A material without the extension (or no material): not drawn by the neural path.
+    /// A primitive without a binding: drawn by the viewer's core path, not by this one.
     Core,
-    /// A material with the extension.
+    /// A primitive with an `EXT_deferred_neural_rendering` binding.
     Neural {
         /// Neural texture index.
         texture: usize,
@@ -144,7 +148,7 @@ pub struct Renderer {
     scene: Scene,
     textures: Vec<NeuralTexture>,
     renderers: Vec<RendererSlot>,
-    /// Per `scene.primitives` entry.
+    /// Per `scene.primitives` entry: its binding, checked against the asset.
     owners: Vec<PrimOwner>,
 }
 
@@ -166,17 +170,23 @@ impl Renderer {
         Self::from_asset(&asset)
     }
 
-    /// Prepares a decoded asset: the scene from its glTF, a pyramid per neural texture, a
-    /// network per renderer. An asset without the extension gives a renderer that draws
-    /// nothing (every pixel is core or background).
+    /// Prepares a decoded asset: the scene from its glTF (each primitive with its binding),
+    /// a pyramid per neural texture, a network per renderer. An asset without the extension
+    /// gives a renderer that draws nothing (every pixel is core or background).
     pub fn from_asset(asset: &Asset) -> Result<Self, RendererError> {
         let glb = asset.container.to_glb()?;
         let scene = from_gltf_slice(&glb)?;
         Self::from_scene(scene, asset)
     }
 
-    /// Like [`Renderer::from_asset`] with a scene the caller built (its primitives'
-    /// `material` fields index the asset's glTF materials).
+    /// Like [`Renderer::from_asset`] with a scene the caller built.
+    ///
+    /// A primitive's binding is its `neural` `(neuralTexture, renderer)`; when that is None
+    /// and its `source` names a glTF `(mesh, primitive)`, the asset's binding of that
+    /// primitive ([`Asset::binding`]) is used; otherwise the primitive is core (not drawn
+    /// here). `material` is not read: the fallback material plays no part in neural shading.
+    /// Every binding must name an existing texture and renderer whose `inputChannels` equal
+    /// the texture's channels ([`RendererError::Binding`] otherwise).
     pub fn from_scene(scene: Scene, asset: &Asset) -> Result<Self, RendererError> {
         let textures = asset
             .textures
@@ -200,40 +210,12 @@ impl Renderer {
                 })
             })
             .collect::<Result<Vec<_>, RendererError>>()?;
-        let mut bindings = Vec::with_capacity(asset.materials.len());
-        for (index, m) in asset.materials.iter().enumerate() {
-            let Some(m) = m else {
-                bindings.push(PrimOwner::Core);
-                continue;
-            };
-            let bad = |reason: String| RendererError::Material { index, reason };
-            let (ti, ri) = (m.neural_texture as usize, m.renderer as usize);
-            let t = textures
-                .get(ti)
-                .ok_or_else(|| bad(format!("neural texture {ti} does not exist")))?;
-            let r = renderers
-                .get(ri)
-                .ok_or_else(|| bad(format!("renderer {ri} does not exist")))?;
-            if t.pyramid.channels != r.input_channels {
-                return Err(bad(format!(
-                    "neural texture {ti} has {} channels, renderer {ri} takes {}",
-                    t.pyramid.channels, r.input_channels
-                )));
-            }
-            bindings.push(PrimOwner::Neural {
-                texture: ti,
-                renderer: ri,
-            });
-        }
         let owners = scene
             .primitives
             .iter()
-            .map(|p| {
-                p.material
-                    .and_then(|m| bindings.get(m as usize).copied())
-                    .unwrap_or(PrimOwner::Core)
-            })
-            .collect();
+            .enumerate()
+            .map(|(index, p)| prim_owner(index, p, asset, &textures, &renderers))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Renderer {
             scene,
             textures,
@@ -298,6 +280,7 @@ impl Renderer {
     ///     tensors: Default::default(),
     ///     dtype: DType::F16,
     /// });
+    /// // Binding (texture 0, renderer 0) for every primitive whose fallback material is 0.
     /// b.add_material(MaterialDesc { name: None, neural_texture: 0, renderer: 0 });
     /// let asset = b.build()?;
     ///
@@ -325,7 +308,7 @@ impl Renderer {
     /// Shades a G-buffer: the neural layer of a frame whose visibility the caller computed.
     ///
     /// `gbuf.prim` must index [`Renderer::scene`]`().primitives` at every covered pixel
-    /// (`coverage != 0`); `uv` is the material's `TEXCOORD_<texCoord>` (non-finite where the
+    /// (`coverage != 0`); `uv` is the binding's `TEXCOORD_<texCoord>` (non-finite where the
     /// primitive has none: the feature is then 0); `view_dir` is the unit eye-to-surface
     /// direction in the primitive's local space (only read where the neural texture has
     /// view dependence; non-finite is treated as `(0, 0, 0)`). Coverage is binary: any
@@ -387,6 +370,56 @@ impl Renderer {
         }
         check_frame(gbuf.width as u64, gbuf.height as u64)?;
         shade::shade(self, gbuf)
+    }
+}
+
+/// The checked binding of scene primitive `index` (see [`Renderer::from_scene`]).
+fn prim_owner(
+    index: usize,
+    p: &Primitive,
+    asset: &Asset,
+    textures: &[NeuralTexture],
+    renderers: &[RendererSlot],
+) -> Result<PrimOwner, RendererError> {
+    let from_asset = || {
+        let (mesh, prim) = p.source?;
+        let b = asset.binding(mesh as usize, prim as usize)?;
+        Some((b.neural_texture, b.renderer))
+    };
+    let Some((ti, ri)) = p.neural.or_else(from_asset) else {
+        return Ok(PrimOwner::Core);
+    };
+    let bad = |reason: String| RendererError::Binding {
+        primitive: index,
+        gltf: p.source,
+        reason,
+    };
+    let (ti, ri) = (ti as usize, ri as usize);
+    let t = textures
+        .get(ti)
+        .ok_or_else(|| bad(format!("neural texture {ti} does not exist")))?;
+    let r = renderers
+        .get(ri)
+        .ok_or_else(|| bad(format!("renderer {ri} does not exist")))?;
+    if t.pyramid.channels != r.input_channels {
+        return Err(bad(format!(
+            "neural texture {ti} has {} channels, renderer {ri} takes {}",
+            t.pyramid.channels, r.input_channels
+        )));
+    }
+    Ok(PrimOwner::Neural {
+        texture: ti,
+        renderer: ri,
+    })
+}
+
+/// How [`RendererError::Binding`] names a primitive.
+fn primitive_name(primitive: usize, gltf: Option<(u32, u32)>) -> String {
+    match gltf {
+        Some((mesh, prim)) => {
+            format!("scene primitive {primitive} (mesh {mesh} primitive {prim}) binding")
+        }
+        None => format!("scene primitive {primitive} binding"),
     }
 }
 

@@ -14,10 +14,11 @@ use crate::texture::for_rows_of_planes;
 
 /// `owner` of an uncovered pixel.
 const BACKGROUND: u32 = u32::MAX;
-/// `owner` of a pixel of a material without the extension.
+/// `owner` of a pixel whose visible primitive has no binding.
 const CORE: u32 = u32::MAX - 1;
 
-/// Who owns each pixel, and with which neural texture.
+/// Who owns each pixel (the renderer of its visible primitive's binding), and with which
+/// neural texture.
 struct Ownership {
     /// Renderer index, [`BACKGROUND`] or [`CORE`], per pixel.
     owner: Vec<u32>,
@@ -160,7 +161,8 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
     Ok(image)
 }
 
-/// Assigns every pixel to a renderer, to core shading, or to the background.
+/// Assigns every pixel to the renderer of its visible primitive's binding, to core shading
+/// (unbound primitive), or to the background.
 fn ownership(r: &Renderer, g: &GBuffer) -> Result<Ownership, RendererError> {
     let n = g.len();
     let prims = r.owners.len();

@@ -1,0 +1,130 @@
+//! `dnr bench train`: the training step and U-Net inference against the sgemm peak measured in
+//! the same run, and (with `--torch`) PyTorch's same step timed in the same run.
+//! `dnr bench render ASSET`: ms per frame of an asset at several sizes.
+
+use std::path::PathBuf;
+use std::process::{Command, ExitCode};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args as ClapArgs, Subcommand};
+use dnr_runtime::camera::Camera;
+use dnr_runtime::renderer::Renderer;
+
+/// Benchmarks (time always reported with what it buys; see README "Benchmarks").
+#[derive(ClapArgs)]
+pub struct Args {
+    #[command(subcommand)]
+    what: What,
+}
+
+#[derive(Subcommand)]
+enum What {
+    /// Training step and inference of the CPU-sized (16..128) and paper (64..512) U-Nets at
+    /// 128/256 (training) and 256/512 (inference), with GFLOP/s as a fraction of the sgemm
+    /// peak measured in the same run.
+    Train {
+        /// Timed repetitions per row (the minimum is reported).
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+        /// Python with torch installed: also time the PyTorch reference
+        /// (shared/peers/dnr_torch.py bench) in the same run and print the ratio.
+        #[arg(long)]
+        torch: Option<PathBuf>,
+        /// The PyTorch reference script.
+        #[arg(long, default_value = "../shared/peers/dnr_torch.py")]
+        peer: PathBuf,
+        /// Write the measurements as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+    /// Milliseconds per frame of an asset at several sizes (camera on a circle around it).
+    Render {
+        /// The asset.
+        asset: PathBuf,
+        /// Square sizes.
+        #[arg(long, value_delimiter = ',', default_value = "256,512")]
+        sizes: Vec<u32>,
+        /// Timed repetitions per size.
+        #[arg(long, default_value_t = 5)]
+        reps: usize,
+    },
+}
+
+/// Runs the subcommand.
+pub fn run(args: &Args) -> Result<ExitCode> {
+    match &args.what {
+        What::Train { reps, torch, peer, json } => train(*reps, torch.as_ref(), peer, json.as_ref()),
+        What::Render { asset, sizes, reps } => render(asset, sizes, *reps),
+    }
+}
+
+fn train(reps: usize, torch: Option<&PathBuf>, peer: &PathBuf, json: Option<&PathBuf>) -> Result<ExitCode> {
+    let report = dnr_bake::bench::run_standard(reps);
+    println!("{report}");
+    let mut out = serde_json::json!({
+        "sgemmPeakGflops": report.peak_gflops,
+        "threads": report.threads,
+        "simd": format!("{:?}", report.simd),
+        "rows": report.rows.iter().map(|r| serde_json::json!({
+            "kind": r.kind, "widths": r.widths, "size": r.size,
+            "msMin": r.ms_min, "msMedian": r.ms_median, "gflop": r.gflop,
+            "gflops": r.gflops(), "fractionOfPeak": r.gflops() / report.peak_gflops,
+        })).collect::<Vec<_>>(),
+    });
+    if let Some(py) = torch {
+        let tmp = std::env::temp_dir().join(format!("dnr-torch-bench-{}.json", std::process::id()));
+        let status = Command::new(py)
+            .arg(peer)
+            .args(["bench", "--widths", "0.25", "1.0", "--train-sizes", "128", "256"])
+            .args(["--infer-sizes", "256", "512", "--threads", &report.threads.to_string()])
+            .arg("--json")
+            .arg(&tmp)
+            .stdout(std::process::Stdio::null())
+            .status()
+            .with_context(|| format!("running {} {}", py.display(), peer.display()))?;
+        if !status.success() {
+            bail!("{}: PyTorch benchmark failed ({status})", peer.display());
+        }
+        let text = std::fs::read_to_string(&tmp).with_context(|| tmp.display().to_string())?;
+        let _ = std::fs::remove_file(&tmp);
+        let t: serde_json::Value = serde_json::from_str(&text).context("PyTorch benchmark JSON")?;
+        println!("PyTorch {} (same run, {} threads):", t["torch"], t["threads"]);
+        println!("| kind | widths | size | PyTorch ms (median) | dnr ms (median) | dnr speed-up |");
+        println!("| --- | --- | ---: | ---: | ---: | ---: |");
+        let mut cmp = Vec::new();
+        for r in t["runs"].as_array().into_iter().flatten() {
+            let widths: Vec<usize> = r["unet_widths"].as_array().into_iter().flatten().filter_map(|v| v.as_u64()).map(|v| v as usize).collect();
+            let size = r["size"].as_u64().unwrap_or(0) as usize;
+            let kind = if r["kind"] == "train_step" { "step" } else { "infer" };
+            let ms_t = r["median_ms"].as_f64().unwrap_or(f64::NAN);
+            if let Some(ours) = report.rows.iter().find(|o| o.kind == kind && o.widths == widths && o.size == size) {
+                println!(
+                    "| {kind} | {widths:?} | {size} | {ms_t:.1} | {:.1} | {:.2}x |",
+                    ours.ms_median,
+                    ms_t / ours.ms_median
+                );
+                cmp.push(serde_json::json!({"kind": kind, "widths": widths, "size": size,
+                    "torchMsMedian": ms_t, "dnrMsMedian": ours.ms_median, "speedup": ms_t / ours.ms_median}));
+            }
+        }
+        out["torch"] = serde_json::json!({"version": t["torch"], "comparisons": cmp});
+    }
+    if let Some(p) = json {
+        std::fs::write(p, serde_json::to_string_pretty(&out)?).with_context(|| p.display().to_string())?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn render(asset: &PathBuf, sizes: &[u32], reps: usize) -> Result<ExitCode> {
+    let r = Renderer::from_path(asset).with_context(|| asset.display().to_string())?;
+    println!("| size | ms per frame (min) | ms (median) |");
+    println!("| ---: | ---: | ---: |");
+    for &s in sizes {
+        let cam = Camera::look_at(glam::Vec3::new(0.0, 1.2, 3.4), glam::Vec3::ZERO, 40.0, s, s);
+        let (min, med) = dnr_bake::bench::time_min_median(reps, || {
+            std::hint::black_box(r.render(&cam, s, s).expect("render"));
+        });
+        println!("| {s} | {:.1} | {:.1} |", 1e3 * min, 1e3 * med);
+    }
+    Ok(ExitCode::SUCCESS)
+}
