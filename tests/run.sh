@@ -24,10 +24,11 @@ fi
 
 step "cargo test (workspace)"
 mkdir -p target
+cargo build -p dnr-cli
 cargo test --workspace --no-fail-fast 2>&1 | tee "$root/target/cargo-test.log"
 
 step "release tests (bake end to end)"
-cargo test --release -p dnr-bake --test 'e2e_*' 2>&1 | tee -a "$root/target/cargo-test.log"
+cargo test --release -p dnr-bake --features e2e --test e2e_bake 2>&1 | tee -a "$root/target/cargo-test.log"
 
 step "Khronos glTF-Validator on samples/valid"
 NODE_PATH="$tools/node/node_modules" node tests/scripts/gltf_validator.mjs samples/valid

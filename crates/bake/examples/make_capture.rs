@@ -373,7 +373,7 @@ fn write_glb(path: &Path) {
     let mut bin: Vec<u8> = Vec::new();
     let mut views = Vec::new();
     let mut push = |bytes: Vec<u8>, target: u32| {
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         views.push(serde_json::json!({ "buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len(), "target": target }));
@@ -392,7 +392,7 @@ fn write_glb(path: &Path) {
         34962,
     );
     push(idx.iter().flat_map(|x| x.to_le_bytes()).collect(), 34963);
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let min = (0..3)
@@ -418,7 +418,7 @@ fn write_glb(path: &Path) {
         "buffers": [{ "byteLength": bin.len() }]
     });
     let mut js = serde_json::to_vec(&json).unwrap();
-    while js.len() % 4 != 0 {
+    while !js.len().is_multiple_of(4) {
         js.push(b' ');
     }
     let total = 12 + 8 + js.len() + 8 + bin.len();

@@ -10,8 +10,8 @@ use serde::Serialize;
 
 use crate::capture::{Capture, LoadOptions};
 use crate::export;
-use crate::train::config::TrainConfig;
 use crate::train::checkpoint::{self, Checkpoint};
+use crate::train::config::TrainConfig;
 use crate::train::{self, views, Checkpointing, Record, RunState, TrainError, Trainer};
 
 /// What to bake and where to put it.
@@ -102,7 +102,9 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let t_start = Instant::now();
     if cfg.threads > 0 {
         // Ignore the error when a global pool already exists (e.g. in tests).
-        let _ = rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build_global();
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(cfg.threads)
+            .build_global();
     }
     let load = LoadOptions {
         mesh: opts.mesh.clone(),
@@ -122,7 +124,11 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     if opts.resume && ckpt_path.is_file() {
         let c = Checkpoint::read(&ckpt_path).map_err(TrainError::from)?;
         state = trainer.restore(&c, &ckpt_path)?;
-        eprintln!("dnr-bake: resuming from {} at step {}", ckpt_path.display(), trainer.step);
+        eprintln!(
+            "dnr-bake: resuming from {} at step {}",
+            ckpt_path.display(),
+            trainer.step
+        );
     }
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     {
@@ -148,12 +154,25 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         Some(&ckpt),
         |t, secs| {
             if let Some(b) = &bar {
-                b.set_position(if cfg.time_budget > 0.0 { secs as u64 } else { t.step });
-                b.set_message(format!("step {} | held-out {:.2} dB", t.step, last_psnr.get()));
+                b.set_position(if cfg.time_budget > 0.0 {
+                    secs as u64
+                } else {
+                    t.step
+                });
+                b.set_message(format!(
+                    "step {} | held-out {:.2} dB",
+                    t.step,
+                    last_psnr.get()
+                ));
             }
             if opts.progress && plain && secs - last_line >= 10.0 {
                 last_line = secs;
-                eprintln!("step {} | {:.0} s | held-out {:.2} dB", t.step, secs, last_psnr.get());
+                eprintln!(
+                    "step {} | {:.0} s | held-out {:.2} dB",
+                    t.step,
+                    secs,
+                    last_psnr.get()
+                );
             }
         },
         |r| {
@@ -189,13 +208,17 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let (test_psnr, test_mse, test_ssim) = if capture.test.is_empty() {
         (f64::NAN, f64::NAN, f64::NAN)
     } else {
-        let renderer = dnr_runtime::renderer::Renderer::from_path(&opts.output).map_err(|e| BakeError::ReadBack {
-            path: opts.output.display().to_string(),
-            message: e.to_string(),
+        let renderer = dnr_runtime::renderer::Renderer::from_path(&opts.output).map_err(|e| {
+            BakeError::ReadBack {
+                path: opts.output.display().to_string(),
+                message: e.to_string(),
+            }
         })?;
-        let rep = crate::eval::evaluate(&renderer, &capture.test, None).map_err(|e| BakeError::ReadBack {
-            path: opts.output.display().to_string(),
-            message: e.to_string(),
+        let rep = crate::eval::evaluate(&renderer, &capture.test, None).map_err(|e| {
+            BakeError::ReadBack {
+                path: opts.output.display().to_string(),
+                message: e.to_string(),
+            }
         })?;
         (rep.mean.psnr, rep.mean.mse_obj, rep.mean.ssim)
     };
@@ -250,8 +273,14 @@ fn progress_bar(enabled: bool, cfg: &TrainConfig) -> Option<ProgressBar> {
 /// Writes `bytes` to `path` through a temporary file in the same folder and a rename, so a
 /// crash never leaves a partial file.
 pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
     std::fs::write(&tmp, bytes)?;
     std::fs::rename(&tmp, path).inspect_err(|_| {

@@ -5,7 +5,9 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use dnr_format::asset::{AssetBuilder, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, WrapMode};
+use dnr_format::asset::{
+    AssetBuilder, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, WrapMode,
+};
 use dnr_format::model::{Architecture, Decoder, Normalization, Renderer, ViewDependence};
 use dnr_format::{LevelCompression, TensorF32, TextureLevel};
 use dnr_runtime::network::unet::{self, UNetParams};
@@ -64,11 +66,22 @@ fn u32_of(x: usize) -> Result<u32, ExportError> {
     u32::try_from(x).map_err(|_| ExportError::Shape(format!("{x} does not fit in u32")))
 }
 
-fn tensors_f32(map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>) -> Result<BTreeMap<String, TensorF32>, ExportError> {
+fn tensors_f32(
+    map: &BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+) -> Result<BTreeMap<String, TensorF32>, ExportError> {
     map.iter()
         .map(|(k, (shape, data))| {
-            let shape = shape.iter().map(|&s| u32_of(s)).collect::<Result<Vec<_>, _>>()?;
-            Ok((k.clone(), TensorF32 { shape, data: data.clone() }))
+            let shape = shape
+                .iter()
+                .map(|&s| u32_of(s))
+                .collect::<Result<Vec<_>, _>>()?;
+            Ok((
+                k.clone(),
+                TensorF32 {
+                    shape,
+                    data: data.clone(),
+                },
+            ))
         })
         .collect()
 }
@@ -108,15 +121,33 @@ pub fn build(
     });
     let out = u32_of(out_ch)?;
     let (renderer, tensors) = match net {
-        ExportNet::None => (Renderer::new(Architecture::None, channels, 3), BTreeMap::new()),
-        ExportNet::Mlp { hidden, out_ch, tensors } => {
+        ExportNet::None => (
+            Renderer::new(Architecture::None, channels, 3),
+            BTreeMap::new(),
+        ),
+        ExportNet::Mlp {
+            hidden,
+            out_ch,
+            tensors,
+        } => {
             let mut r = Renderer::new(Architecture::Mlp, channels, u32_of(*out_ch)?);
-            r.hidden = Some(hidden.iter().map(|&h| u32_of(h)).collect::<Result<_, _>>()?);
+            r.hidden = Some(
+                hidden
+                    .iter()
+                    .map(|&h| u32_of(h))
+                    .collect::<Result<_, _>>()?,
+            );
             (r, tensors_f32(tensors)?)
         }
         ExportNet::Unet { params, tensors } => {
             let mut r = Renderer::new(Architecture::Unet, channels, out);
-            r.widths = Some(params.widths.iter().map(|&w| u32_of(w)).collect::<Result<_, _>>()?);
+            r.widths = Some(
+                params
+                    .widths
+                    .iter()
+                    .map(|&w| u32_of(w))
+                    .collect::<Result<_, _>>()?,
+            );
             r.decoder = Some(match params.decoder {
                 unet::Decoder::TransposedConv => Decoder::TransposedConv,
                 unet::Decoder::UpsampleConv => Decoder::UpsampleConv,
@@ -128,7 +159,11 @@ pub fn build(
             (r, tensors_f32(tensors)?)
         }
     };
-    let rend = b.add_renderer(RendererDesc { renderer, tensors, dtype });
+    let rend = b.add_renderer(RendererDesc {
+        renderer,
+        tensors,
+        dtype,
+    });
     let mat = b.add_material(MaterialDesc {
         name: Some("neural".into()),
         neural_texture: tex,
@@ -159,7 +194,10 @@ pub fn build(
 /// Writes the asset atomically (temporary file in the same folder, then rename); returns its
 /// size in bytes.
 pub fn write(builder: &AssetBuilder, path: &Path) -> Result<u64, ExportError> {
-    let err = |source| ExportError::Format { path: path.display().to_string(), source };
+    let err = |source| ExportError::Format {
+        path: path.display().to_string(),
+        source,
+    };
     builder.write(path).map_err(err)?;
     Ok(std::fs::metadata(path).map(|m| m.len()).unwrap_or(0))
 }

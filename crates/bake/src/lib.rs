@@ -3,10 +3,10 @@
 //!
 //! Uses the runtime's forward kernels so what it optimises is what the runtime draws.
 
+pub mod bake;
+pub mod bench;
 pub mod capture;
 pub mod eval;
-pub mod kernels;
-pub mod bench;
-pub mod bake;
 pub mod export;
+pub mod kernels;
 pub mod train;

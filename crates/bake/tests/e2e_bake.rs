@@ -22,7 +22,11 @@ fn bake_json(args: &[&str], out: &Path) -> serde_json::Value {
         .args(args)
         .output()
         .expect("run dnr-bake");
-    assert!(o.status.success(), "dnr-bake failed: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "dnr-bake failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     serde_json::from_slice(&o.stdout).expect("--json output")
 }
 
@@ -35,17 +39,38 @@ const BUDGET: &str = "45";
 #[test]
 fn unet_beats_texture_only_within_budget() {
     let dir = tempfile::tempdir().unwrap();
-    let unet = bake_json(&["--preset", "fast", "--time-budget", BUDGET], &dir.path().join("unet.glb"));
+    let unet = bake_json(
+        &["--preset", "fast", "--time-budget", BUDGET],
+        &dir.path().join("unet.glb"),
+    );
     let none = bake_json(
-        &["--preset", "fast", "--arch", "none", "--time-budget", BUDGET],
+        &[
+            "--preset",
+            "fast",
+            "--arch",
+            "none",
+            "--time-budget",
+            BUDGET,
+        ],
         &dir.path().join("none.glb"),
     );
-    let (pu, pn) = (unet["testPsnr"].as_f64().unwrap(), none["testPsnr"].as_f64().unwrap());
+    let (pu, pn) = (
+        unet["testPsnr"].as_f64().unwrap(),
+        none["testPsnr"].as_f64().unwrap(),
+    );
     eprintln!("held-out PSNR: U-Net {pu:.2} dB, texture only {pn:.2} dB");
-    assert!(pu > pn, "U-Net {pu:.2} dB does not beat texture-only {pn:.2} dB");
-    assert!(pu > FLOOR_DB, "U-Net {pu:.2} dB below the floor {FLOOR_DB} dB");
+    assert!(
+        pu > pn,
+        "U-Net {pu:.2} dB does not beat texture-only {pn:.2} dB"
+    );
+    assert!(
+        pu > FLOOR_DB,
+        "U-Net {pu:.2} dB below the floor {FLOOR_DB} dB"
+    );
     // The asset the bake wrote validates.
-    let report = dnr_format::validate_file(&dir.path().join("unet.glb"), &dnr_format::Limits::default()).unwrap();
+    let report =
+        dnr_format::validate_file(&dir.path().join("unet.glb"), &dnr_format::Limits::default())
+            .unwrap();
     assert!(!report.has_errors(), "{report:?}");
     // No temporary files left beside the outputs.
     let leftovers: Vec<_> = std::fs::read_dir(dir.path())
@@ -83,9 +108,15 @@ fn expect_error(dir: &Path, needle: &str) {
         .expect("run dnr-bake");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "bad capture accepted");
-    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("dnr-bake: error")).collect();
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("dnr-bake: error"))
+        .collect();
     assert_eq!(lines.len(), 1, "want one error line, got: {err}");
-    assert!(lines[0].contains(needle), "error does not name {needle}: {err}");
+    assert!(
+        lines[0].contains(needle),
+        "error does not name {needle}: {err}"
+    );
     assert!(!out.exists(), "an output was written for a bad capture");
 }
 
@@ -109,7 +140,9 @@ fn bad_captures_give_one_line_naming_the_file() {
     let p = d.path().join("transforms_train.json");
     let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
     v["frames"][1]["transform_matrix"][0][3] = serde_json::json!(null);
-    let text = serde_json::to_string(&v).unwrap().replacen("null", "NaN", 1);
+    let text = serde_json::to_string(&v)
+        .unwrap()
+        .replacen("null", "NaN", 1);
     std::fs::write(&p, text).unwrap();
     expect_error(d.path(), "transforms_train.json");
 
@@ -141,7 +174,16 @@ fn sigkill_and_resume_reaches_the_straight_result() {
         c.arg(duck_tiny())
             .arg("-o")
             .arg(out)
-            .args(["--preset", "fast", "--steps", "500", "--threads", "2", "--seed", "5"])
+            .args([
+                "--preset",
+                "fast",
+                "--steps",
+                "500",
+                "--threads",
+                "2",
+                "--seed",
+                "5",
+            ])
             .args(["--checkpoint-every", "0.3", "--eval-every", "0"]);
         c
     };
@@ -154,7 +196,11 @@ fn sigkill_and_resume_reaches_the_straight_result() {
     let mut kills = 0;
     let mut finished = false;
     for round in 0..60 {
-        let mut child = args(&out).arg("--resume").stderr(std::process::Stdio::null()).spawn().unwrap();
+        let mut child = args(&out)
+            .arg("--resume")
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
         if kills < 20 {
             let wait_ms = rng.random_range(50..650);
             std::thread::sleep(std::time::Duration::from_millis(wait_ms));

@@ -233,7 +233,7 @@ fn sample_backward_is_bit_identical_across_runs_and_thread_counts() {
     let (w, h) = (61, 47);
     let mut g = gbuffer(&mut rng, w, h);
     for i in 0..w * h {
-        if i % 3 == 0 {
+        if i.is_multiple_of(3) {
             g.uv[i] = [
                 0.5 + 0.01 * rng.random_range(-1.0..1.0f32),
                 0.5 + 0.01 * rng.random_range(-1.0..1.0f32),

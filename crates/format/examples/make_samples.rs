@@ -405,10 +405,10 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
             wrap: (WM::ClampToEdge, WM::ClampToEdge),
             sh: Some(ViewDependence::spherical_harmonics(1, 3)),
             compression: LC::Rle,
-            ..one(7, Renderer::new(A::None, 7, 4))
+            ..one(7, Renderer::new(A::None, 7, 3))
         },
     )?;
-    w.put("valid/none_sh1_clamp.glb", &glb(&none_sh)?, "none with 4 output channels, SH degree 1 on channels 3..7, 2 odd-sized levels 13x11, CLAMP_TO_EDGE, EXR RLE", &[])?;
+    w.put("valid/none_sh1_clamp.glb", &glb(&none_sh)?, "none reading 7 channels, SH degree 1 on channels 3..7, 2 odd-sized levels 13x11, CLAMP_TO_EDGE, EXR RLE", &[])?;
 
     let mlp16 = single(
         3,
@@ -704,6 +704,24 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         "texture declares 0 channels (so it also mismatches the renderer)",
         &["TEXTURE_CHANNELS_RANGE", "RENDERER_INPUT_MISMATCH"],
     )?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["channels"] = json!(2)
+    })?;
+    w.put(
+        "invalid/texture_channels_2.glb",
+        &out,
+        "texture declares 2 channels, below the minimum 3 (so it also mismatches the renderer)",
+        &["TEXTURE_CHANNELS_RANGE", "RENDERER_INPUT_MISMATCH"],
+    )?;
+    let out = edit(&base, |v, _| {
+        ext(v)["neuralTextures"][0]["channels"] = json!(1025)
+    })?;
+    w.put(
+        "invalid/texture_channels_1025.glb",
+        &out,
+        "texture declares 1025 channels, above the maximum 1024: a range error, not LIMIT_EXCEEDED (so it also mismatches the renderer)",
+        &["TEXTURE_CHANNELS_RANGE", "RENDERER_INPUT_MISMATCH"],
+    )?;
 
     let out = edit(&base, |v, _| {
         ext(v)["neuralTextures"][0]["levels"][0]["width"] = json!(100000)
@@ -763,6 +781,16 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         &out,
         "unet with empty widths",
         &["RENDERER_PARAMETER_INVALID"],
+    )?;
+
+    let out = edit(&glb(&none)?, |v, _| {
+        ext(v)["renderers"][0]["outputChannels"] = json!(4)
+    })?;
+    w.put(
+        "invalid/none_output_channels_4.glb",
+        &out,
+        "architecture none with outputChannels 4 (none has no alpha output: it requires 3)",
+        &["RENDERER_OUTPUT_CHANNELS"],
     )?;
 
     let out = edit(&base, |v, _| {

@@ -19,7 +19,18 @@ pub fn renderer_problems(r: &Renderer) -> Vec<Problem> {
         ));
         return out;
     }
-    if !(r.output_channels == 3 || r.output_channels == 4) {
+    if r.architecture == Architecture::None {
+        // `none` passes channels 0..3 through as colour; it has no alpha output.
+        if r.output_channels != 3 {
+            out.push(Problem::invalid(
+                "RENDERER_OUTPUT_CHANNELS",
+                format!(
+                    "outputChannels is {}, architecture `none` requires 3",
+                    r.output_channels
+                ),
+            ));
+        }
+    } else if !(r.output_channels == 3 || r.output_channels == 4) {
         out.push(Problem::invalid(
             "RENDERER_OUTPUT_CHANNELS",
             format!("outputChannels is {}, must be 3 or 4", r.output_channels),
@@ -194,5 +205,23 @@ mod tests {
         );
         r.architecture = Architecture::Unknown("gan".into());
         assert!(architecture_tensors(&r).is_err());
+    }
+
+    #[test]
+    fn none_takes_three_outputs_and_at_least_three_inputs() {
+        let codes = |i, o| -> Vec<&str> {
+            renderer_problems(&Renderer::new(Architecture::None, i, o))
+                .iter()
+                .map(|p| p.code)
+                .collect()
+        };
+        assert!(codes(3, 3).is_empty());
+        assert!(codes(7, 3).is_empty());
+        assert_eq!(codes(7, 4), ["RENDERER_OUTPUT_CHANNELS"]);
+        assert_eq!(codes(3, 5), ["RENDERER_OUTPUT_CHANNELS"]);
+        assert_eq!(codes(2, 3), ["RENDERER_PARAMETER_INVALID"]);
+        assert!(architecture_tensors(&Renderer::new(Architecture::None, 7, 4)).is_err());
+        // 4 outputs stay valid for the networks.
+        assert!(renderer_problems(&Renderer::mlp(3, 4, vec![])).is_empty());
     }
 }

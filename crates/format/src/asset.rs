@@ -21,6 +21,12 @@ use crate::model::{self, DType, PrimitiveExtension, Renderer, ViewDependence};
 use crate::weights::{crc32, decode_tensor, pack_tensors, TensorF32};
 use crate::EXTENSION_NAME;
 
+/// The `channels` a neural texture may declare (spec: `3 <= C <= 1024`; at least 3 because
+/// the fallback image and the `none` renderer read channels 0..3). Outside it is
+/// `TEXTURE_CHANNELS_RANGE`; inside it but above [`Limits::max_channels`] is
+/// `LIMIT_EXCEEDED`.
+pub const TEXTURE_CHANNELS: std::ops::RangeInclusive<u32> = 3..=1024;
+
 /// Texture coordinate wrapping of the core sampler (`wrapS`/`wrapT`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum WrapMode {
@@ -341,6 +347,15 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
     let mut texel_values = 0u64;
     let mut textures = Vec::with_capacity(ext.neural_textures.len());
     for (ti, t) in ext.neural_textures.iter().enumerate() {
+        // Range before limit, as the validator reports them (TEXTURE_CHANNELS_RANGE).
+        if !TEXTURE_CHANNELS.contains(&t.channels) {
+            return Err(Error::invalid(format!(
+                "texture {ti} has {} channels, must have {}..={}",
+                t.channels,
+                TEXTURE_CHANNELS.start(),
+                TEXTURE_CHANNELS.end()
+            )));
+        }
         Limits::check(
             "texture levels",
             t.levels.len() as u64,
@@ -351,10 +366,8 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
             u64::from(t.channels),
             u64::from(limits.max_channels),
         )?;
-        if t.levels.is_empty() || t.channels == 0 {
-            return Err(Error::invalid(format!(
-                "texture {ti} has no levels or no channels"
-            )));
+        if t.levels.is_empty() {
+            return Err(Error::invalid(format!("texture {ti} has no levels")));
         }
         let mut levels = Vec::with_capacity(t.levels.len());
         for (li, l) in t.levels.iter().enumerate() {

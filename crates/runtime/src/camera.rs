@@ -60,7 +60,12 @@ impl Camera {
             cy: 0.5 * height as f32,
             width,
             height,
-            cam_to_world: Mat4::from_cols(x.extend(0.0), y.extend(0.0), z.extend(0.0), eye.extend(1.0)),
+            cam_to_world: Mat4::from_cols(
+                x.extend(0.0),
+                y.extend(0.0),
+                z.extend(0.0),
+                eye.extend(1.0),
+            ),
         }
     }
 

@@ -5,11 +5,11 @@
 #![deny(unsafe_code)]
 
 pub mod camera;
-pub mod scene;
 pub mod gbuffer;
-pub mod raster;
-pub mod sh;
-pub mod texture;
 pub mod network;
 pub mod nn;
+pub mod raster;
 pub mod renderer;
+pub mod scene;
+pub mod sh;
+pub mod texture;

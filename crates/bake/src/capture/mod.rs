@@ -171,7 +171,7 @@ impl HoldOut {
         match self {
             HoldOut::None => false,
             HoldOut::All => true,
-            HoldOut::Every(n) => n != 0 && index % n == 0,
+            HoldOut::Every(n) => n != 0 && index.is_multiple_of(n),
         }
     }
 }

@@ -170,7 +170,11 @@ mod tests {
     #[test]
     fn identical_images_are_perfect() {
         let d = img(13, 7, |x, y| [x as f32 / 13.0, y as f32 / 7.0, 0.5, 1.0]);
-        let a = Rgba { width: 13, height: 7, data: &d };
+        let a = Rgba {
+            width: 13,
+            height: 7,
+            data: &d,
+        };
         let e = view_error(&a, &a);
         assert_eq!(e.psnr, 100.0);
         assert_eq!(e.mse_obj, 0.0);
@@ -180,7 +184,13 @@ mod tests {
     #[test]
     fn psnr_and_object_mse_match_hand_computation() {
         // Truth: left half object (alpha 1, black), right half background.
-        let t = img(4, 2, |x, _| if x < 2 { [0.0, 0.0, 0.0, 1.0] } else { [0.0; 4] });
+        let t = img(4, 2, |x, _| {
+            if x < 2 {
+                [0.0, 0.0, 0.0, 1.0]
+            } else {
+                [0.0; 4]
+            }
+        });
         // Render: object pixels off by 10/255 in red only; background exact (white).
         let r = img(4, 2, |x, _| {
             if x < 2 {
@@ -190,8 +200,16 @@ mod tests {
             }
         });
         let e = view_error(
-            &Rgba { width: 4, height: 2, data: &r },
-            &Rgba { width: 4, height: 2, data: &t },
+            &Rgba {
+                width: 4,
+                height: 2,
+                data: &r,
+            },
+            &Rgba {
+                width: 4,
+                height: 2,
+                data: &t,
+            },
         );
         // Object: 4 pixels x 3 channels, one channel each off by 10 -> MSE = 4*100/12.
         assert!((e.mse_obj - 100.0 / 3.0).abs() < 1e-9, "{}", e.mse_obj);

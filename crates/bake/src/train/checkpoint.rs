@@ -77,7 +77,9 @@ pub struct Checkpoint {
 impl Checkpoint {
     /// Adds an array.
     pub fn push(&mut self, name: &str, data: &[f32]) {
-        self.header.arrays.push((name.to_string(), data.len() as u64));
+        self.header
+            .arrays
+            .push((name.to_string(), data.len() as u64));
         self.arrays.push(data.to_vec());
     }
 
@@ -96,7 +98,13 @@ impl Checkpoint {
 
     /// The optimiser state saved under `name`.
     pub fn adam(&self, name: &str) -> Option<AdamState> {
-        let t = self.header.adam_steps.iter().find(|(n, _)| n == name)?.1.clone();
+        let t = self
+            .header
+            .adam_steps
+            .iter()
+            .find(|(n, _)| n == name)?
+            .1
+            .clone();
         Some(AdamState {
             m: self.array(&format!("{name}.m"))?.to_vec(),
             v: self.array(&format!("{name}.v"))?.to_vec(),
@@ -106,7 +114,10 @@ impl Checkpoint {
 
     /// Writes atomically to `path`.
     pub fn write(&self, path: &Path) -> Result<(), CheckpointError> {
-        let io = |source| CheckpointError::Io { path: path.to_path_buf(), source };
+        let io = |source| CheckpointError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
         let header = serde_json::to_vec(&self.header).map_err(|e| io(std::io::Error::other(e)))?;
         let total: usize = self.arrays.iter().map(|a| 4 * a.len()).sum();
         let mut bytes = Vec::with_capacity(8 + 8 + header.len() + total + 4);
@@ -120,11 +131,16 @@ impl Checkpoint {
         }
         let crc = crc32fast::hash(&bytes);
         bytes.extend_from_slice(&crc.to_le_bytes());
-        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir).map_err(io)?;
         let tmp = dir.join(format!(
             ".{}.{}.tmp",
-            path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default(),
+            path.file_name()
+                .map(|n| n.to_string_lossy())
+                .unwrap_or_default(),
             std::process::id()
         ));
         let mut f = std::fs::File::create(&tmp).map_err(io)?;
@@ -140,8 +156,14 @@ impl Checkpoint {
 
     /// Reads and verifies a checkpoint.
     pub fn read(path: &Path) -> Result<Checkpoint, CheckpointError> {
-        let corrupt = |what: &str| CheckpointError::Corrupt { path: path.to_path_buf(), what: what.to_string() };
-        let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io { path: path.to_path_buf(), source })?;
+        let corrupt = |what: &str| CheckpointError::Corrupt {
+            path: path.to_path_buf(),
+            what: what.to_string(),
+        };
+        let bytes = std::fs::read(path).map_err(|source| CheckpointError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
         if bytes.len() < 20 || &bytes[..8] != MAGIC {
             return Err(corrupt("bad magic or too short"));
         }
@@ -155,7 +177,8 @@ impl Checkpoint {
             return Err(corrupt("header length"));
         }
         let hend = 16 + hlen as usize;
-        let header: Header = serde_json::from_slice(&body[16..hend]).map_err(|e| corrupt(&e.to_string()))?;
+        let header: Header =
+            serde_json::from_slice(&body[16..hend]).map_err(|e| corrupt(&e.to_string()))?;
         let total: u64 = header.arrays.iter().map(|(_, n)| *n).sum();
         if total.checked_mul(4) != Some((body.len() - hend) as u64) {
             return Err(corrupt("array lengths disagree with the file size"));
@@ -177,8 +200,13 @@ impl Checkpoint {
 
 /// Where the checkpoint of a bake writing `output` lives: a folder next to it.
 pub fn path_for(output: &Path) -> PathBuf {
-    let name = output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "asset".into());
-    output.with_file_name(format!("{name}.ckpt")).join("state.bin")
+    let name = output
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "asset".into());
+    output
+        .with_file_name(format!("{name}.ckpt"))
+        .join("state.bin")
 }
 
 #[cfg(test)]
@@ -203,7 +231,14 @@ mod tests {
             arrays: vec![],
         };
         c.push("x", &[1.0, -2.5, f32::MAX]);
-        c.push_adam("opt", &AdamState { m: vec![0.5], v: vec![0.25], t: vec![9] });
+        c.push_adam(
+            "opt",
+            &AdamState {
+                m: vec![0.5],
+                v: vec![0.25],
+                t: vec![9],
+            },
+        );
         c
     }
 
@@ -214,12 +249,18 @@ mod tests {
         let c = sample();
         c.write(&p).unwrap();
         assert_eq!(Checkpoint::read(&p).unwrap(), c);
-        assert_eq!(Checkpoint::read(&p).unwrap().adam("opt").unwrap().t, vec![9]);
+        assert_eq!(
+            Checkpoint::read(&p).unwrap().adam("opt").unwrap().t,
+            vec![9]
+        );
         let bytes = std::fs::read(&p).unwrap();
         // Every truncation and a flipped byte anywhere must be rejected, never panic.
         for len in 0..bytes.len() {
             std::fs::write(&p, &bytes[..len]).unwrap();
-            assert!(Checkpoint::read(&p).is_err(), "truncation to {len} accepted");
+            assert!(
+                Checkpoint::read(&p).is_err(),
+                "truncation to {len} accepted"
+            );
         }
         for i in (0..bytes.len()).step_by(7) {
             let mut b = bytes.clone();
@@ -228,7 +269,10 @@ mod tests {
             assert!(Checkpoint::read(&p).is_err(), "flip at {i} accepted");
         }
         // No temporary file is left behind.
-        let names: Vec<_> = std::fs::read_dir(p.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(p.parent().unwrap())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names.len(), 1, "{names:?}");
     }
 }

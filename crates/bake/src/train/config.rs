@@ -21,7 +21,9 @@ impl std::str::FromStr for Arch {
             "none" => Ok(Arch::None),
             "mlp" => Ok(Arch::Mlp),
             "unet" => Ok(Arch::Unet),
-            _ => Err(format!("unknown architecture '{s}' (expected none, mlp or unet)")),
+            _ => Err(format!(
+                "unknown architecture '{s}' (expected none, mlp or unet)"
+            )),
         }
     }
 }
@@ -48,7 +50,9 @@ impl std::str::FromStr for Preset {
             "balanced" => Ok(Preset::Balanced),
             "quality" => Ok(Preset::Quality),
             "paper" => Ok(Preset::Paper),
-            _ => Err(format!("unknown preset '{s}' (expected fast, balanced, quality or paper)")),
+            _ => Err(format!(
+                "unknown preset '{s}' (expected fast, balanced, quality or paper)"
+            )),
         }
     }
 }

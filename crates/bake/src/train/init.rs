@@ -31,7 +31,9 @@ fn splat(views: &[View], width: usize, height: usize, wrap_s: Wrap, wrap_t: Wrap
                 continue;
             }
             let [u, vv] = v.gbuf.uv[i];
-            let Some(tp) = taps(width, height, wrap_s, wrap_t, u, vv) else { continue };
+            let Some(tp) = taps(width, height, wrap_s, wrap_t, u, vv) else {
+                continue;
+            };
             for (t, w) in tp {
                 let w = w as f64;
                 s.weight[t] += w;
@@ -68,7 +70,10 @@ pub fn classical_pyramid(
 ) -> (Pyramid, Vec<Vec<bool>>, InitStats) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let sizes: Vec<usize> = (0..levels).map(|k| (resolution >> k).max(1)).collect();
-    let splats: Vec<Splat> = sizes.iter().map(|&r| splat(views, r, r, wrap, wrap)).collect();
+    let splats: Vec<Splat> = sizes
+        .iter()
+        .map(|&r| splat(views, r, r, wrap, wrap))
+        .collect();
 
     // Global mean colour over object pixels (from the coarsest splat, which sums all of them).
     let coarse = splats.last().expect("at least one level");
@@ -89,7 +94,13 @@ pub fn classical_pyramid(
                 width: r,
                 height: r,
                 data: (0..r * r * channels)
-                    .map(|i| if i % channels < 3 { 0.0 } else { noise * gauss(&mut rng) })
+                    .map(|i| {
+                        if i % channels < 3 {
+                            0.0
+                        } else {
+                            noise * gauss(&mut rng)
+                        }
+                    })
                     .collect(),
             })
             .collect(),

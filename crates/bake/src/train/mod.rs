@@ -21,7 +21,7 @@ use serde::Serialize;
 use crate::eval::metrics::{view_error, Rgba, ViewError};
 use crate::export::ExportNet;
 use crate::kernels::adam::{Adam, AdamConfig, SparseAdam};
-use crate::kernels::loss::{colour_l1_loss, level_lambda, l1_loss};
+use crate::kernels::loss::{colour_l1_loss, l1_loss, level_lambda};
 use crate::kernels::unet::UNetTrain;
 use config::{Arch, TrainConfig};
 use views::View;
@@ -110,9 +110,15 @@ impl Trainer {
     pub fn new(cfg: TrainConfig, train: &[View]) -> Result<Trainer, TrainError> {
         let c = cfg.channels as usize;
         if cfg.sh && c < (SH_FIRST + (SH_DEGREE + 1).pow(2)) as usize {
-            return Err(TrainError::Config(format!("{c} channels: the SH layer needs at least 12 (or --no-sh)")));
+            return Err(TrainError::Config(format!(
+                "{c} channels: the SH layer needs at least 12 (or --no-sh)"
+            )));
         }
-        if c < 3 || cfg.levels == 0 || cfg.resolution == 0 || cfg.resolution >> (cfg.levels - 1) == 0 {
+        if c < 3
+            || cfg.levels == 0
+            || cfg.resolution == 0
+            || cfg.resolution >> (cfg.levels - 1) == 0
+        {
             return Err(TrainError::Config(format!(
                 "{c} channels, {} levels at {}: need >= 3 channels and a coarsest level of >= 1 texel",
                 cfg.levels, cfg.resolution
@@ -122,23 +128,56 @@ impl Trainer {
             return Err(TrainError::NothingVisible);
         }
         let has_alpha = train.iter().any(|v| v.has_alpha);
-        let out_ch = if cfg.alpha && has_alpha && cfg.arch == Arch::Unet { 4 } else { 3 };
-        let wrap = if uvs_in_unit_square(train) { Wrap::ClampToEdge } else { Wrap::Repeat };
-        let (pyr, _seen, _stats) =
-            init::classical_pyramid(train, c, cfg.resolution as usize, cfg.levels as usize, wrap, 0.01, cfg.seed);
-        let tex_cfg = AdamConfig { lr: cfg.lr_tex, ..AdamConfig::default() };
-        let tex_adam = pyr.levels.iter().map(|l| SparseAdam::new(l.width * l.height, c, tex_cfg)).collect();
+        let out_ch = if cfg.alpha && has_alpha && cfg.arch == Arch::Unet {
+            4
+        } else {
+            3
+        };
+        let wrap = if uvs_in_unit_square(train) {
+            Wrap::ClampToEdge
+        } else {
+            Wrap::Repeat
+        };
+        let (pyr, _seen, _stats) = init::classical_pyramid(
+            train,
+            c,
+            cfg.resolution as usize,
+            cfg.levels as usize,
+            wrap,
+            0.01,
+            cfg.seed,
+        );
+        let tex_cfg = AdamConfig {
+            lr: cfg.lr_tex,
+            ..AdamConfig::default()
+        };
+        let tex_adam = pyr
+            .levels
+            .iter()
+            .map(|l| SparseAdam::new(l.width * l.height, c, tex_cfg))
+            .collect();
         let tex_grads = pyr.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
         let net = match cfg.arch {
             Arch::None => Net::None,
             Arch::Unet => {
                 let net = UNetTrain::init(unet_params(&cfg, out_ch), cfg.seed ^ 0x5eed)
                     .map_err(|e| TrainError::Config(e.to_string()))?;
-                let ncfg = AdamConfig { lr: cfg.lr_net, ..AdamConfig::default() };
-                let adam = net.weights.iter().map(|w| Adam::new(w.len(), ncfg)).collect();
+                let ncfg = AdamConfig {
+                    lr: cfg.lr_net,
+                    ..AdamConfig::default()
+                };
+                let adam = net
+                    .weights
+                    .iter()
+                    .map(|w| Adam::new(w.len(), ncfg))
+                    .collect();
                 Net::Unet { net, adam }
             }
-            Arch::Mlp => return Err(TrainError::Config("training the mlp architecture is not implemented yet".into())),
+            Arch::Mlp => {
+                return Err(TrainError::Config(
+                    "training the mlp architecture is not implemented yet".into(),
+                ))
+            }
         };
         Ok(Trainer {
             rng: ChaCha8Rng::seed_from_u64(cfg.seed),
@@ -178,18 +217,29 @@ impl Trainer {
                 return c;
             }
         }
-        views.iter().find(|v| v.gbuf.covered_count() > 0).expect("checked in new").clone()
+        views
+            .iter()
+            .find(|v| v.gbuf.covered_count() > 0)
+            .expect("checked in new")
+            .clone()
     }
 
     /// The feature image of a view: sampled pyramid (C x H x W), before and after SH.
     fn features(&self, v: &View) -> Result<(Tensor, Tensor), TrainError> {
         let c = self.pyr.channels;
         let mut raw = Tensor::zeros(c, v.height(), v.width());
-        sample_into(&self.pyr, &v.gbuf, &mut raw.data).map_err(|e| TrainError::Kernel(e.to_string()))?;
+        sample_into(&self.pyr, &v.gbuf, &mut raw.data)
+            .map_err(|e| TrainError::Kernel(e.to_string()))?;
         let mut x = raw.clone();
         if let Some((deg, first)) = self.sh() {
-            dnr_runtime::sh::modulate(&mut x.data, &v.gbuf.view_dir, &v.gbuf.coverage, first as usize, deg)
-                .map_err(|e| TrainError::Kernel(e.to_string()))?;
+            dnr_runtime::sh::modulate(
+                &mut x.data,
+                &v.gbuf.view_dir,
+                &v.gbuf.coverage,
+                first as usize,
+                deg,
+            )
+            .map_err(|e| TrainError::Kernel(e.to_string()))?;
         }
         Ok((raw, x))
     }
@@ -200,7 +250,8 @@ impl Trainer {
         let (h, w) = (v.height(), v.width());
         let n = h * w;
         let (raw, x) = self.features(&v)?;
-        let target = Tensor::from_vec(3, h, w, v.target.clone()).map_err(|e| TrainError::Kernel(e.to_string()))?;
+        let target = Tensor::from_vec(3, h, w, v.target.clone())
+            .map_err(|e| TrainError::Kernel(e.to_string()))?;
 
         // Forward to straight colour and alpha, then composite on white as the target is.
         let (colour, alpha, acts) = match &self.net {
@@ -209,10 +260,15 @@ impl Trainer {
                 (colour, v.gbuf.coverage.clone(), None)
             }
             Net::Unet { net, .. } => {
-                let (y, acts) = net.forward(&x).map_err(|e| TrainError::Kernel(e.to_string()))?;
+                let (y, acts) = net
+                    .forward(&x)
+                    .map_err(|e| TrainError::Kernel(e.to_string()))?;
                 let colour: Vec<f32> = y.data[..3 * n].iter().map(|&t| 0.5 * (t + 1.0)).collect();
                 let alpha = if self.out_ch == 4 {
-                    y.data[3 * n..4 * n].iter().map(|&t| 0.5 * (t + 1.0)).collect()
+                    y.data[3 * n..4 * n]
+                        .iter()
+                        .map(|&t| 0.5 * (t + 1.0))
+                        .collect()
                 } else {
                     v.gbuf.coverage.clone()
                 };
@@ -229,8 +285,10 @@ impl Trainer {
         let loss = l1_loss(&comp, &target, None, 1.0, &mut dcomp);
         let mut dalpha = vec![0.0f32; n];
         if self.out_ch == 4 {
-            let pa = Tensor::from_vec(1, h, w, alpha.clone()).map_err(|e| TrainError::Kernel(e.to_string()))?;
-            let ta = Tensor::from_vec(1, h, w, v.alpha.clone()).map_err(|e| TrainError::Kernel(e.to_string()))?;
+            let pa = Tensor::from_vec(1, h, w, alpha.clone())
+                .map_err(|e| TrainError::Kernel(e.to_string()))?;
+            let ta = Tensor::from_vec(1, h, w, v.alpha.clone())
+                .map_err(|e| TrainError::Kernel(e.to_string()))?;
             let mut da = Tensor::zeros(1, h, w);
             l1_loss(&pa, &ta, None, 1.0, &mut da);
             dalpha = da.data;
@@ -240,29 +298,33 @@ impl Trainer {
         let mut dx = Tensor::zeros(self.pyr.channels, h, w);
         match (&mut self.net, acts) {
             (Net::None, _) => {
-                for c in 0..3 {
-                    for i in 0..n {
-                        let t = x.data[c * n + i];
-                        if (0.0..=1.0).contains(&t) {
-                            dx.data[c * n + i] = dcomp.data[c * n + i] * alpha[i];
-                        }
+                // colour = clamp(x): gradient only where x is inside [0, 1].
+                for ((d, &x), (&g, &a)) in dx.data[..3 * n]
+                    .iter_mut()
+                    .zip(&x.data[..3 * n])
+                    .zip(dcomp.data.iter().zip(alpha.iter().cycle()))
+                {
+                    if (0.0..=1.0).contains(&x) {
+                        *d = g * a;
                     }
                 }
             }
             (Net::Unet { net, .. }, Some((y, acts))) => {
+                // comp = colour * a + (1 - a), colour = (t + 1) / 2, a = (t3 + 1) / 2.
                 let mut dy = Tensor::zeros(self.out_ch, h, w);
-                for c in 0..3 {
-                    for i in 0..n {
-                        let g = dcomp.data[c * n + i];
-                        dy.data[c * n + i] = 0.5 * g * alpha[i];
-                        if self.out_ch == 4 {
-                            dalpha[i] += g * (colour[c * n + i] - 1.0);
-                        }
+                let (dcol, dal) = dy.data.split_at_mut(3 * n);
+                for (c, (dcol_c, dcomp_c)) in
+                    dcol.chunks_mut(n).zip(dcomp.data.chunks(n)).enumerate()
+                {
+                    let col_c = &colour[c * n..(c + 1) * n];
+                    for (i, (d, &g)) in dcol_c.iter_mut().zip(dcomp_c).enumerate() {
+                        *d = 0.5 * g * alpha[i];
+                        dalpha[i] += g * (col_c[i] - 1.0);
                     }
                 }
                 if self.out_ch == 4 {
-                    for i in 0..n {
-                        dy.data[3 * n + i] = 0.5 * dalpha[i];
+                    for (d, &g) in dal.iter_mut().zip(&dalpha) {
+                        *d = 0.5 * g;
                     }
                 }
                 let _ = y;
@@ -273,18 +335,37 @@ impl Trainer {
         }
         // SH modulation is linear and diagonal: its backward is itself.
         if let Some((deg, first)) = self.sh() {
-            dnr_runtime::sh::modulate(&mut dx.data, &v.gbuf.view_dir, &v.gbuf.coverage, first as usize, deg)
-                .map_err(|e| TrainError::Kernel(e.to_string()))?;
+            dnr_runtime::sh::modulate(
+                &mut dx.data,
+                &v.gbuf.view_dir,
+                &v.gbuf.coverage,
+                first as usize,
+                deg,
+            )
+            .map_err(|e| TrainError::Kernel(e.to_string()))?;
         }
         // Mean-colour supervision of channels 0..2 over covered object pixels.
         if self.cfg.mean_colour_weight > 0.0 && self.cfg.arch != Arch::None {
-            let covered: Vec<bool> = (0..n).map(|i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5).collect();
-            colour_l1_loss(&raw, &target, &covered, self.cfg.mean_colour_weight, &mut dx);
+            let covered: Vec<bool> = (0..n)
+                .map(|i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5)
+                .collect();
+            colour_l1_loss(
+                &raw,
+                &target,
+                &covered,
+                self.cfg.mean_colour_weight,
+                &mut dx,
+            );
         }
 
         // Texture: scatter into the levels, then lazy Adam on the touched texels only.
-        let touched = crate::kernels::sample::sample_backward(&self.pyr, &v.gbuf, &dx.data, &mut self.tex_grads)
-            .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        let touched = crate::kernels::sample::sample_backward(
+            &self.pyr,
+            &v.gbuf,
+            &dx.data,
+            &mut self.tex_grads,
+        )
+        .map_err(|e| TrainError::Kernel(e.to_string()))?;
         let k_total = self.pyr.levels.len();
         for (k, lvl) in self.pyr.levels.iter_mut().enumerate() {
             let decay = 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32;
@@ -303,7 +384,11 @@ impl Trainer {
 
     /// Mean training loss since the last call.
     pub fn take_loss(&mut self) -> f64 {
-        let l = if self.loss_n > 0 { self.loss_sum / self.loss_n as f64 } else { f64::NAN };
+        let l = if self.loss_n > 0 {
+            self.loss_sum / self.loss_n as f64
+        } else {
+            f64::NAN
+        };
         self.loss_sum = 0.0;
         self.loss_n = 0;
         l
@@ -313,7 +398,10 @@ impl Trainer {
     pub fn export_net(&self) -> ExportNet {
         match &self.net {
             Net::None => ExportNet::None,
-            Net::Unet { net, .. } => ExportNet::Unet { params: net.params.clone(), tensors: net.to_map() },
+            Net::Unet { net, .. } => ExportNet::Unet {
+                params: net.params.clone(),
+                tensors: net.to_map(),
+            },
         }
     }
 
@@ -326,7 +414,8 @@ impl Trainer {
     pub fn evaluate(&self, views: &[View]) -> Result<Vec<ViewError>, TrainError> {
         let unet = match &self.net {
             Net::Unet { net, .. } => Some(
-                UNet::from_map(net.params.clone(), &net.to_map()).map_err(|e| TrainError::Kernel(e.to_string()))?,
+                UNet::from_map(net.params.clone(), &net.to_map())
+                    .map_err(|e| TrainError::Kernel(e.to_string()))?,
             ),
             Net::None => None,
         };
@@ -336,9 +425,14 @@ impl Trainer {
             let n = h * w;
             let (_, x) = self.features(v)?;
             let (colour, alpha): (Vec<f32>, Vec<f32>) = match &unet {
-                None => (x.data[..3 * n].iter().map(|t| t.clamp(0.0, 1.0)).collect(), v.gbuf.coverage.clone()),
+                None => (
+                    x.data[..3 * n].iter().map(|t| t.clamp(0.0, 1.0)).collect(),
+                    v.gbuf.coverage.clone(),
+                ),
                 Some(net) => {
-                    let y = net.forward(&x).map_err(|e| TrainError::Kernel(e.to_string()))?;
+                    let y = net
+                        .forward(&x)
+                        .map_err(|e| TrainError::Kernel(e.to_string()))?;
                     let col = y.data[..3 * n].iter().map(|&t| 0.5 * (t + 1.0)).collect();
                     let a = if self.out_ch == 4 {
                         y.data[3 * n..].iter().map(|&t| 0.5 * (t + 1.0)).collect()
@@ -361,12 +455,28 @@ impl Trainer {
             }
             // Object pixels come from the capture's mask, so measure them with it.
             let mut e = view_error(
-                &Rgba { width: w, height: h, data: &render },
-                &Rgba { width: w, height: h, data: &truth },
+                &Rgba {
+                    width: w,
+                    height: h,
+                    data: &render,
+                },
+                &Rgba {
+                    width: w,
+                    height: h,
+                    data: &truth,
+                },
             );
             let (mut se, mut cnt) = (0.0f64, 0usize);
-            let r8 = crate::eval::metrics::on_white_u8(&Rgba { width: w, height: h, data: &render });
-            let t8 = crate::eval::metrics::on_white_u8(&Rgba { width: w, height: h, data: &truth });
+            let r8 = crate::eval::metrics::on_white_u8(&Rgba {
+                width: w,
+                height: h,
+                data: &render,
+            });
+            let t8 = crate::eval::metrics::on_white_u8(&Rgba {
+                width: w,
+                height: h,
+                data: &truth,
+            });
             for i in 0..n {
                 if v.alpha[i] > 0.5 {
                     for c in 0..3 {
@@ -417,8 +527,15 @@ impl Trainer {
     }
 
     /// Restores a checkpoint written by [`Trainer::checkpoint`] for the same configuration.
-    pub fn restore(&mut self, c: &checkpoint::Checkpoint, path: &Path) -> Result<RunState, TrainError> {
-        let bad = |what: String| checkpoint::CheckpointError::Corrupt { path: path.to_path_buf(), what };
+    pub fn restore(
+        &mut self,
+        c: &checkpoint::Checkpoint,
+        path: &Path,
+    ) -> Result<RunState, TrainError> {
+        let bad = |what: String| checkpoint::CheckpointError::Corrupt {
+            path: path.to_path_buf(),
+            what,
+        };
         let mut want = serde_json::to_value(&self.cfg).unwrap_or_default();
         let mut have = c.header.config.clone();
         // The budget may be raised on resume; everything else must match.
@@ -432,9 +549,14 @@ impl Trainer {
         }
         for (k, l) in self.pyr.levels.iter_mut().enumerate() {
             let name = format!("texture.{k}");
-            let a = c.array(&name).filter(|a| a.len() == l.data.len()).ok_or_else(|| bad(name.clone()))?;
+            let a = c
+                .array(&name)
+                .filter(|a| a.len() == l.data.len())
+                .ok_or_else(|| bad(name.clone()))?;
             l.data.copy_from_slice(a);
-            let st = c.adam(&format!("{name}.adam")).ok_or_else(|| bad(format!("{name}.adam")))?;
+            let st = c
+                .adam(&format!("{name}.adam"))
+                .ok_or_else(|| bad(format!("{name}.adam")))?;
             if !self.tex_adam[k].set_state(st) {
                 return Err(bad(format!("{name}.adam size")).into());
             }
@@ -442,9 +564,14 @@ impl Trainer {
         if let Net::Unet { net, adam } = &mut self.net {
             for (i, (w, a)) in net.weights.iter_mut().zip(adam.iter_mut()).enumerate() {
                 let name = format!("net.{i}");
-                let v = c.array(&name).filter(|v| v.len() == w.len()).ok_or_else(|| bad(name.clone()))?;
+                let v = c
+                    .array(&name)
+                    .filter(|v| v.len() == w.len())
+                    .ok_or_else(|| bad(name.clone()))?;
                 w.copy_from_slice(v);
-                let st = c.adam(&format!("{name}.adam")).ok_or_else(|| bad(format!("{name}.adam")))?;
+                let st = c
+                    .adam(&format!("{name}.adam"))
+                    .ok_or_else(|| bad(format!("{name}.adam")))?;
                 if !a.set_state(st) {
                     return Err(bad(format!("{name}.adam size")).into());
                 }
@@ -455,18 +582,21 @@ impl Trainer {
         self.step = c.header.step;
         self.loss_sum = c.header.loss_sum;
         self.loss_n = c.header.loss_n;
-        let records = serde_json::from_value(c.header.records.clone()).map_err(|e| bad(e.to_string()))?;
-        Ok(RunState { train_secs: c.header.train_secs, next_eval: c.header.next_eval, records })
+        let records =
+            serde_json::from_value(c.header.records.clone()).map_err(|e| bad(e.to_string()))?;
+        Ok(RunState {
+            train_secs: c.header.train_secs,
+            next_eval: c.header.next_eval,
+            records,
+        })
     }
 }
 
 fn uvs_in_unit_square(views: &[View]) -> bool {
     views.iter().all(|v| {
-        v.gbuf
-            .uv
-            .iter()
-            .zip(&v.gbuf.coverage)
-            .all(|(uv, &c)| c == 0.0 || (-1e-3..=1.001).contains(&uv[0]) && (-1e-3..=1.001).contains(&uv[1]))
+        v.gbuf.uv.iter().zip(&v.gbuf.coverage).all(|(uv, &c)| {
+            c == 0.0 || (-1e-3..=1.001).contains(&uv[0]) && (-1e-3..=1.001).contains(&uv[1])
+        })
     })
 }
 
@@ -525,11 +655,19 @@ pub fn run(
                 last_ckpt = Instant::now();
             }
             if stop {
-                return Err(TrainError::Interrupted { step: trainer.step, path: c.path.display().to_string() });
+                return Err(TrainError::Interrupted {
+                    step: trainer.step,
+                    path: c.path.display().to_string(),
+                });
             }
         }
     }
-    if !test.is_empty() && state.records.last().is_none_or(|r: &Record| r.step != trainer.step) {
+    if !test.is_empty()
+        && state
+            .records
+            .last()
+            .is_none_or(|r: &Record| r.step != trainer.step)
+    {
         let rec = record(trainer, test, state.train_secs)?;
         on_record(&rec);
         state.records.push(rec);

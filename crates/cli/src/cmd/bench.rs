@@ -53,12 +53,22 @@ enum What {
 /// Runs the subcommand.
 pub fn run(args: &Args) -> Result<ExitCode> {
     match &args.what {
-        What::Train { reps, torch, peer, json } => train(*reps, torch.as_ref(), peer, json.as_ref()),
+        What::Train {
+            reps,
+            torch,
+            peer,
+            json,
+        } => train(*reps, torch.as_ref(), peer, json.as_ref()),
         What::Render { asset, sizes, reps } => render(asset, sizes, *reps),
     }
 }
 
-fn train(reps: usize, torch: Option<&PathBuf>, peer: &PathBuf, json: Option<&PathBuf>) -> Result<ExitCode> {
+fn train(
+    reps: usize,
+    torch: Option<&PathBuf>,
+    peer: &PathBuf,
+    json: Option<&PathBuf>,
+) -> Result<ExitCode> {
     let report = dnr_bake::bench::run_standard(reps);
     println!("{report}");
     let mut out = serde_json::json!({
@@ -75,8 +85,22 @@ fn train(reps: usize, torch: Option<&PathBuf>, peer: &PathBuf, json: Option<&Pat
         let tmp = std::env::temp_dir().join(format!("dnr-torch-bench-{}.json", std::process::id()));
         let status = Command::new(py)
             .arg(peer)
-            .args(["bench", "--widths", "0.25", "1.0", "--train-sizes", "128", "256"])
-            .args(["--infer-sizes", "256", "512", "--threads", &report.threads.to_string()])
+            .args([
+                "bench",
+                "--widths",
+                "0.25",
+                "1.0",
+                "--train-sizes",
+                "128",
+                "256",
+            ])
+            .args([
+                "--infer-sizes",
+                "256",
+                "512",
+                "--threads",
+                &report.threads.to_string(),
+            ])
             .arg("--json")
             .arg(&tmp)
             .stdout(std::process::Stdio::null())
@@ -88,16 +112,33 @@ fn train(reps: usize, torch: Option<&PathBuf>, peer: &PathBuf, json: Option<&Pat
         let text = std::fs::read_to_string(&tmp).with_context(|| tmp.display().to_string())?;
         let _ = std::fs::remove_file(&tmp);
         let t: serde_json::Value = serde_json::from_str(&text).context("PyTorch benchmark JSON")?;
-        println!("PyTorch {} (same run, {} threads):", t["torch"], t["threads"]);
+        println!(
+            "PyTorch {} (same run, {} threads):",
+            t["torch"], t["threads"]
+        );
         println!("| kind | widths | size | PyTorch ms (median) | dnr ms (median) | dnr speed-up |");
         println!("| --- | --- | ---: | ---: | ---: | ---: |");
         let mut cmp = Vec::new();
         for r in t["runs"].as_array().into_iter().flatten() {
-            let widths: Vec<usize> = r["unet_widths"].as_array().into_iter().flatten().filter_map(|v| v.as_u64()).map(|v| v as usize).collect();
+            let widths: Vec<usize> = r["unet_widths"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|v| v.as_u64())
+                .map(|v| v as usize)
+                .collect();
             let size = r["size"].as_u64().unwrap_or(0) as usize;
-            let kind = if r["kind"] == "train_step" { "step" } else { "infer" };
+            let kind = if r["kind"] == "train_step" {
+                "step"
+            } else {
+                "infer"
+            };
             let ms_t = r["median_ms"].as_f64().unwrap_or(f64::NAN);
-            if let Some(ours) = report.rows.iter().find(|o| o.kind == kind && o.widths == widths && o.size == size) {
+            if let Some(ours) = report
+                .rows
+                .iter()
+                .find(|o| o.kind == kind && o.widths == widths && o.size == size)
+            {
                 println!(
                     "| {kind} | {widths:?} | {size} | {ms_t:.1} | {:.1} | {:.2}x |",
                     ours.ms_median,
@@ -110,7 +151,8 @@ fn train(reps: usize, torch: Option<&PathBuf>, peer: &PathBuf, json: Option<&Pat
         out["torch"] = serde_json::json!({"version": t["torch"], "comparisons": cmp});
     }
     if let Some(p) = json {
-        std::fs::write(p, serde_json::to_string_pretty(&out)?).with_context(|| p.display().to_string())?;
+        std::fs::write(p, serde_json::to_string_pretty(&out)?)
+            .with_context(|| p.display().to_string())?;
     }
     Ok(ExitCode::SUCCESS)
 }

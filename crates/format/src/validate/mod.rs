@@ -19,6 +19,7 @@ pub use codes::{code_info, CodeInfo, Severity, CODES};
 use crate::architecture::{architecture_tensors, renderer_problems};
 use crate::asset::{
     bound_primitive_values, fallback_problem, root_extension_value, FallbackProblem,
+    TEXTURE_CHANNELS,
 };
 use crate::container::{self, parse_glb, parse_root, resolve_buffer, Problem};
 use crate::error::{Error, Result};
@@ -591,11 +592,16 @@ fn check_texture(
 ) {
     let limits = ctx.limits;
     let mut channels_ok = true;
-    if t.channels == 0 {
+    if !TEXTURE_CHANNELS.contains(&t.channels) {
         ctx.report(
             "TEXTURE_CHANNELS_RANGE",
             &ptr.key("channels"),
-            "channels must be at least 1",
+            format!(
+                "channels is {}, must be in {}..={}",
+                t.channels,
+                TEXTURE_CHANNELS.start(),
+                TEXTURE_CHANNELS.end()
+            ),
         );
         channels_ok = false;
     } else if t.channels > limits.max_channels {
