@@ -43,6 +43,7 @@ fn samples_on_disk_equal_generator_output() {
         .filter(|p| {
             p.starts_with("valid")
                 || p.starts_with("invalid")
+                || p.starts_with("warnings")
                 || p == Path::new("README.md")
                 || p == Path::new("expected.json")
         })
@@ -73,7 +74,7 @@ fn expected_json_lists_every_sample() {
     let listed: BTreeSet<PathBuf> = expected().keys().map(PathBuf::from).collect();
     let on_disk: BTreeSet<PathBuf> = files_under(&samples_dir())
         .into_iter()
-        .filter(|p| p.starts_with("valid") || p.starts_with("invalid"))
+        .filter(|p| p.starts_with("valid") || p.starts_with("invalid") || p.starts_with("warnings"))
         .filter(|p| p.extension().is_some_and(|e| e == "glb" || e == "gltf"))
         .collect();
     assert_eq!(listed, on_disk);
@@ -213,7 +214,7 @@ fn invalid_samples_give_expected_codes_without_panicking() {
     let limits = Limits::default();
     let mut n = 0;
     for (file, codes) in expected() {
-        if !file.starts_with("invalid/") {
+        if !file.starts_with("invalid/") && !file.starts_with("warnings/") {
             continue;
         }
         n += 1;
@@ -233,6 +234,8 @@ fn invalid_samples_give_expected_codes_without_panicking() {
         let has_error = want
             .iter()
             .any(|c| code_info(c).unwrap().severity == Severity::Error);
+        // invalid/ files all carry an error (dnr validate exits 1); warnings/ files none.
+        assert_eq!(has_error, file.starts_with("invalid/"), "{file}: folder and severity disagree");
         let read = catch_unwind(|| read_asset(&path))
             .unwrap_or_else(|_| panic!("{file}: read_asset panicked"));
         assert_eq!(

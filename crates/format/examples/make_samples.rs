@@ -967,7 +967,7 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
 
     let out = edit(&base, |v, _| binding(v)["texCoord"] = json!(1))?;
     w.put(
-        "invalid/texcoord_missing.glb",
+        "warnings/texcoord_missing.glb",
         &out,
         "the binding addresses TEXCOORD_1, the primitive has only TEXCOORD_0 (a warning: exit code 0)",
         &["TEXCOORD_MISSING"],
@@ -1001,7 +1001,7 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         ..Node::default()
     });
     w.put(
-        "invalid/levels_coarse_first.glb",
+        "warnings/levels_coarse_first.glb",
         &glb(&b.build_container()?)?,
         "levels listed 4x4 then 8x8 (a warning: exit code 0)",
         &["TEXTURE_LEVEL_ORDER"],
@@ -1037,8 +1037,9 @@ fn write_index(dir: &Path, samples: &[Sample]) -> Res<()> {
          fixed seeds); do not edit by hand. `tests/conformance.rs` regenerates them and fails if\n\
          these files differ. `expected.json` maps each file to the exact set of validator codes it\n\
          must produce (`[]` for valid files, which must also have no warnings and round-trip\n\
-         byte-identically). `dnr validate` exits 1 on the invalid files except those whose only\n\
-         codes are warnings (`TEXCOORD_MISSING`, `TEXTURE_LEVEL_ORDER`), where it exits 0.\n\n\
+         byte-identically). `dnr validate` exits 1 on every file in `invalid/`; the files in\n\
+         `warnings/` load and render but draw a warning (`TEXCOORD_MISSING`,\n\
+         `TEXTURE_LEVEL_ORDER`), so `dnr validate` reports them and exits 0.\n\n\
          The bindings live on mesh primitives\n\
          (`meshes[m].primitives[p].extensions.EXT_deferred_neural_rendering`); fallback materials\n\
          carry only `KHR_materials_unlit`, and the Khronos glTF-Validator reports no error and no\n\
