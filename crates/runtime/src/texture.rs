@@ -151,7 +151,10 @@ pub type Tap = (usize, f32);
 /// `(x0, y0), (x0+1, y0), (x0, y0+1), (x0+1, y0+1)` with weights
 /// `(1-fx)(1-fy), fx(1-fy), (1-fx)fy, fx fy`. None when u or v is not finite or the level
 /// is empty. Wrapped taps may coincide (clamping, width 1); their weights then add up.
-#[inline]
+///
+/// Always inlined: the samplers call it per pixel and level, and the call (a few kB of code
+/// for the three wrap modes) cost about as much as the bilinear blend it feeds.
+#[inline(always)]
 pub fn taps(
     width: usize,
     height: usize,
@@ -296,6 +299,13 @@ impl Pyramid {
 /// Samples the pyramid at every pixel of `gbuf` into `out`, planar `channels x height x
 /// width` (CHW). Covered pixels with finite uv get the sum over levels; all other pixels
 /// are set to zero (without sampling). Parallel over rows.
+///
+/// Same values, bit for bit, as [`Pyramid::accumulate`] into zeros at each pixel: every
+/// pixel still adds its taps level by level, tap by tap. The loop runs level-major over a
+/// row (all pixels of level 0, then of level 1, ...) so that consecutive pixels are
+/// independent work (their texel loads overlap instead of waiting on one pixel's chain of
+/// additions), with the pixel's partial sum held in registers for the channel counts the
+/// baker uses.
 pub fn sample_into(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
     pyr.validate()?;
     let (w, h, c) = (gbuf.width, gbuf.height, pyr.channels);
@@ -310,26 +320,81 @@ pub fn sample_into(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(),
         return Ok(());
     }
     for_rows_of_planes(out, c, w, h, |y, planes| {
-        // Accumulate the row texel-interleaved (each tap adds C contiguous values), then
-        // transpose into the planes.
-        let mut acc = vec![0.0f32; w * c];
         let row = y * w..(y + 1) * w;
-        for (x, (&[u, v], &cov)) in gbuf.uv[row.clone()]
+        let uv = &gbuf.uv[row.clone()];
+        // Pixels that sample: covered with finite uv (the rest stay zero).
+        let px: Vec<u32> = gbuf.coverage[row]
             .iter()
-            .zip(&gbuf.coverage[row])
+            .zip(uv)
             .enumerate()
-        {
-            if cov != 0.0 {
-                pyr.accumulate(u, v, &mut acc[x * c..(x + 1) * c]);
+            .filter(|(_, (&cov, [u, v]))| cov != 0.0 && u.is_finite() && v.is_finite())
+            .map(|(x, _)| x as u32)
+            .collect();
+        if px.is_empty() {
+            planes.iter_mut().for_each(|p| p.fill(0.0));
+            return;
+        }
+        // The row texel-interleaved (each tap adds C contiguous values), then transposed
+        // into the planes.
+        let mut acc = vec![0.0f32; w * c];
+        match c {
+            4 => accumulate_row::<4>(pyr, uv, &px, &mut acc),
+            8 => accumulate_row::<8>(pyr, uv, &px, &mut acc),
+            12 => accumulate_row::<12>(pyr, uv, &px, &mut acc),
+            16 => accumulate_row::<16>(pyr, uv, &px, &mut acc),
+            _ => {
+                for l in &pyr.levels {
+                    for &x in &px {
+                        let x = x as usize;
+                        let [u, v] = uv[x];
+                        let Some(tp) = taps(l.width, l.height, pyr.wrap_s, pyr.wrap_t, u, v)
+                        else {
+                            continue;
+                        };
+                        let a = &mut acc[x * c..(x + 1) * c];
+                        for (t, wt) in tp {
+                            for (o, &tx) in a.iter_mut().zip(&l.data[t * c..(t + 1) * c]) {
+                                *o += wt * tx;
+                            }
+                        }
+                    }
+                }
             }
         }
         for (ch, plane) in planes.iter_mut().enumerate() {
-            for (p, a) in plane.iter_mut().zip(acc.iter().skip(ch).step_by(c)) {
-                *p = *a;
+            for (p, a) in plane.iter_mut().zip(acc.chunks_exact(c)) {
+                *p = a[ch];
             }
         }
     });
     Ok(())
+}
+
+/// Adds every level's taps at the pixels `px` of one row into `acc` (`[x][C]`), level-major,
+/// for a channel count known at compile time (the sum stays in registers across the taps).
+/// `px` holds only pixels with finite uv.
+#[inline]
+fn accumulate_row<const C: usize>(pyr: &Pyramid, uv: &[[f32; 2]], px: &[u32], acc: &mut [f32]) {
+    for l in &pyr.levels {
+        for &x in px {
+            let x = x as usize;
+            let [u, v] = uv[x];
+            let Some(tp) = taps(l.width, l.height, pyr.wrap_s, pyr.wrap_t, u, v) else {
+                continue;
+            };
+            let a: &mut [f32; C] = (&mut acc[x * C..(x + 1) * C])
+                .try_into()
+                .expect("C values");
+            let mut s = *a;
+            for (t, wt) in tp {
+                let texel: &[f32; C] = l.data[t * C..(t + 1) * C].try_into().expect("C values");
+                for (o, &tx) in s.iter_mut().zip(texel) {
+                    *o += wt * tx;
+                }
+            }
+            *a = s;
+        }
+    }
 }
 
 /// Runs `f(y, rows)` in parallel over image rows, where `rows[k]` is row `y` of plane `k` of

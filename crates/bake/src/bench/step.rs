@@ -11,26 +11,56 @@ use crate::train::config::{Arch, Preset, TrainConfig};
 use crate::train::views::View;
 use crate::train::Trainer;
 
-/// A synthetic fully covered view: random uv, random unit view directions, random target.
+/// A synthetic view shaped like a real one, mirroring `synthetic_inputs` of the PyTorch
+/// reference (shared/peers/dnr_torch.py) so `dnr bench train --torch` compares like with like:
+/// with `x, y` the pixel's position in [0, 1] (`linspace`, ends included) and a random phase
+/// `ph`, a smooth, slightly warped uv field covering about 80% of the texture
+/// (`u = 0.1 + 0.8 x + 0.03 sin(6.28 (2 y) + ph)`, `v = 0.1 + 0.8 (1 - y) + 0.03 sin(6.28 (3 x)
+/// + ph)`), coverage on the disc `(x - .5)^2 + (y - .5)^2 < 0.19` (about 60% of the frame),
+/// view directions `normalize(x - .5, y - .5, -1)`, a random target colour and the disc as the
+/// target alpha. Neighbouring pixels hit neighbouring texels, as on a rasterised mesh.
 pub fn synthetic_view(size: usize, seed: u64) -> View {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     let n = size * size;
+    // torch.linspace(0, 1, size).
+    let lin = |i: usize| {
+        if size > 1 {
+            i as f32 / (size - 1) as f32
+        } else {
+            0.0
+        }
+    };
+    // The reference uses 6.28 for 2 pi; keep its numbers.
+    let tau = 6.28f32;
+    let ph = r.random::<f32>() * tau;
     let mut g = GBuffer::new(size, size);
-    for i in 0..n {
-        g.uv[i] = [r.random::<f32>(), r.random::<f32>()];
-        g.coverage[i] = 1.0;
-        g.prim[i] = 0;
-        g.tri[i] = 0;
-        g.depth[i] = 1.0;
-        let d = [r.random::<f32>() - 0.5, r.random::<f32>() - 0.5, -1.0f32];
-        let l = (d[0] * d[0] + d[1] * d[1] + 1.0).sqrt();
-        g.view_dir[i] = [d[0] / l, d[1] / l, d[2] / l];
+    let mut alpha = vec![0.0f32; n];
+    for yi in 0..size {
+        let y = lin(yi);
+        for xi in 0..size {
+            let x = lin(xi);
+            let i = yi * size + xi;
+            let (dx, dy) = (x - 0.5, y - 0.5);
+            if dx * dx + dy * dy >= 0.19 {
+                continue;
+            }
+            let u = 0.1 + 0.8 * x + 0.03 * (tau * y * 2.0 + ph).sin();
+            let v = 0.1 + 0.8 * (1.0 - y) + 0.03 * (tau * x * 3.0 + ph).sin();
+            g.uv[i] = [u, v];
+            g.coverage[i] = 1.0;
+            g.prim[i] = 0;
+            g.tri[i] = 0;
+            g.depth[i] = 1.0;
+            let l = (dx * dx + dy * dy + 1.0).sqrt();
+            g.view_dir[i] = [dx / l, dy / l, -1.0 / l];
+            alpha[i] = 1.0;
+        }
     }
     View {
         name: format!("synthetic{seed}"),
         gbuf: g,
         target: (0..3 * n).map(|_| r.random::<f32>()).collect(),
-        alpha: vec![1.0; n],
+        alpha,
         has_alpha: true,
     }
 }

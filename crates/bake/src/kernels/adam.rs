@@ -139,14 +139,9 @@ impl Adam {
     }
 }
 
-/// One row's parameter, gradient, first and second moment, and step count.
-type RowRefs<'a> = (
-    &'a mut [f32],
-    &'a mut [f32],
-    &'a mut [f32],
-    &'a mut [f32],
-    &'a mut u32,
-);
+/// Rows per parallel block of [`SparseAdam::step`] (fixed, so results do not depend on the
+/// thread count; they do not depend on the block size either: rows are independent).
+const ROW_BLOCK: usize = 1024;
 
 /// Lazy Adam over rows of `width` values (texels of a neural texture): a step updates only the
 /// rows it is given, and each row keeps its own step count for the bias correction.
@@ -183,6 +178,48 @@ impl SparseAdam {
         self.t[row]
     }
 
+    /// Number of rows.
+    pub fn rows(&self) -> usize {
+        self.t.len()
+    }
+
+    /// Values per row.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Splits the state and `params` (same layout as the moments) into consecutive blocks of
+    /// `rows_per_block` rows (the last may be shorter) that can be updated independently,
+    /// e.g. in parallel, with [`SparseAdamRows::update`].
+    pub fn row_blocks<'a>(
+        &'a mut self,
+        params: &'a mut [f32],
+        rows_per_block: usize,
+    ) -> Vec<SparseAdamRows<'a>> {
+        assert_eq!(params.len(), self.m.len(), "sparse adam: length");
+        assert!(rows_per_block > 0, "sparse adam: empty blocks");
+        let (cfg, w) = (self.cfg, self.width);
+        let mut out = Vec::with_capacity(self.t.len().div_ceil(rows_per_block));
+        let (mut p_rest, mut m_rest, mut v_rest) = (params, &mut self.m[..], &mut self.v[..]);
+        for t in self.t.chunks_mut(rows_per_block) {
+            let len = t.len() * w;
+            let (p, pr) = std::mem::take(&mut p_rest).split_at_mut(len);
+            let (m, mr) = std::mem::take(&mut m_rest).split_at_mut(len);
+            let (v, vr) = std::mem::take(&mut v_rest).split_at_mut(len);
+            (p_rest, m_rest, v_rest) = (pr, mr, vr);
+            out.push(SparseAdamRows {
+                cfg,
+                width: w,
+                params: p,
+                m,
+                v,
+                t,
+                consts: None,
+            });
+        }
+        out
+    }
+
     /// Updates the rows listed in `rows` (each at most once, ascending order not required)
     /// from `grads` (same layout as `params`), adding `decay * param` to each gradient first
     /// (lazy L2: only touched rows decay), then zeroes those gradient rows.
@@ -192,56 +229,97 @@ impl SparseAdam {
             params.len() == self.m.len() && grads.len() == self.m.len(),
             "sparse adam: length"
         );
-        let cfg = self.cfg;
         let nrows = self.t.len();
-        // Rows are disjoint, so the per-row work runs on the fixed chunks of the row list with
-        // each row's slices found by index; results do not depend on the thread count.
-        let mut order: Vec<u32> = rows.to_vec();
-        order.sort_unstable();
+        // Blocks of rows run in parallel, each on the part of the (sorted) row list that falls
+        // in it; rows are independent, so results do not depend on the thread count.
+        let sorted: std::borrow::Cow<'_, [u32]> = if rows.is_sorted() {
+            rows.into()
+        } else {
+            let mut r = rows.to_vec();
+            r.sort_unstable();
+            r.into()
+        };
         assert!(
-            order.windows(2).all(|p| p[0] != p[1]),
+            sorted.windows(2).all(|p| p[0] != p[1]),
             "sparse adam: duplicate row"
         );
         assert!(
-            order.last().is_none_or(|&r| (r as usize) < nrows),
+            sorted.last().is_none_or(|&r| (r as usize) < nrows),
             "sparse adam: row out of range"
         );
-        let mut work: Vec<RowRefs<'_>> = Vec::with_capacity(order.len());
-        {
-            let mut p_rest = &mut params[..];
-            let mut g_rest = &mut grads[..];
-            let mut m_rest = &mut self.m[..];
-            let mut v_rest = &mut self.v[..];
-            let mut t_rest = &mut self.t[..];
-            let mut at = 0usize;
-            for &r in &order {
-                let skip = r as usize - at;
-                let (_, p) = std::mem::take(&mut p_rest).split_at_mut(skip * w);
-                let (p, pr) = p.split_at_mut(w);
-                let (_, g) = std::mem::take(&mut g_rest).split_at_mut(skip * w);
-                let (g, gr) = g.split_at_mut(w);
-                let (_, m) = std::mem::take(&mut m_rest).split_at_mut(skip * w);
-                let (m, mr) = m.split_at_mut(w);
-                let (_, v) = std::mem::take(&mut v_rest).split_at_mut(skip * w);
-                let (v, vr) = v.split_at_mut(w);
-                let (_, t) = std::mem::take(&mut t_rest).split_at_mut(skip);
-                let (t, tr) = t.split_at_mut(1);
-                work.push((p, g, m, v, &mut t[0]));
-                (p_rest, g_rest, m_rest, v_rest, t_rest) = (pr, gr, mr, vr, tr);
-                at = r as usize + 1;
-            }
+        if w == 0 {
+            sorted.iter().for_each(|&r| self.t[r as usize] += 1);
+            return;
         }
-        work.par_chunks_mut(1024).for_each(|chunk| {
-            for (p, g, m, v, t) in chunk.iter_mut() {
-                **t += 1;
-                let k = StepConsts::new(&cfg, u64::from(**t));
-                for i in 0..p.len() {
-                    let gi = g[i] + decay * p[i];
-                    k.update(&mut p[i], gi, &mut m[i], &mut v[i]);
-                    g[i] = 0.0;
+        self.row_blocks(params, ROW_BLOCK)
+            .into_par_iter()
+            .zip(grads.par_chunks_mut(ROW_BLOCK * w))
+            .enumerate()
+            .for_each(|(b, (mut blk, g))| {
+                let lo = b * ROW_BLOCK;
+                let from = sorted.partition_point(|&r| (r as usize) < lo);
+                let to = sorted.partition_point(|&r| (r as usize) < lo + blk.len());
+                for &r in &sorted[from..to] {
+                    let g = &mut g[(r as usize - lo) * w..][..w];
+                    blk.update(r as usize - lo, g, decay);
+                    g.fill(0.0);
                 }
+            });
+    }
+}
+
+/// A block of consecutive rows of a [`SparseAdam`] with their parameters (from
+/// [`SparseAdam::row_blocks`]).
+pub struct SparseAdamRows<'a> {
+    cfg: AdamConfig,
+    width: usize,
+    params: &'a mut [f32],
+    m: &'a mut [f32],
+    v: &'a mut [f32],
+    t: &'a mut [u32],
+    /// The constants of the last step count used: neighbouring rows usually share it, and
+    /// computing them (two `powi`, a square root) costs as much as a row's update.
+    consts: Option<(u32, StepConsts)>,
+}
+
+impl SparseAdamRows<'_> {
+    /// Rows in the block.
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+
+    /// Whether the block has no rows.
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+
+    /// One lazy-Adam step of the block's row `row` from its gradient `grad` (`width` values),
+    /// with `decay * param` added to the gradient first: exactly what [`SparseAdam::step`]
+    /// does to a listed row (the gradient is not cleared here).
+    #[inline]
+    pub fn update(&mut self, row: usize, grad: &[f32], decay: f32) {
+        let w = self.width;
+        assert_eq!(grad.len(), w, "sparse adam: gradient row");
+        let t = &mut self.t[row];
+        *t += 1;
+        let k = match self.consts {
+            Some((tc, k)) if tc == *t => k,
+            _ => {
+                let k = StepConsts::new(&self.cfg, u64::from(*t));
+                self.consts = Some((*t, k));
+                k
             }
-        });
+        };
+        let range = row * w..(row + 1) * w;
+        let (p, m, v) = (
+            &mut self.params[range.clone()],
+            &mut self.m[range.clone()],
+            &mut self.v[range],
+        );
+        for (((p, &g), m), v) in p.iter_mut().zip(grad).zip(m).zip(v) {
+            let gi = g + decay * *p;
+            k.update(p, gi, m, v);
+        }
     }
 }
 

@@ -62,16 +62,37 @@ pub fn colour_l1_loss(
     grad: &mut Tensor,
 ) -> f64 {
     assert!(
-        features.c >= 3 && target.c >= 3 && target.h == features.h && target.w == features.w,
+        target.c >= 3 && target.h == features.h && target.w == features.w,
+        "colour l1: shapes"
+    );
+    assert_eq!(
+        covered.len(),
+        features.plane_len(),
+        "colour l1: coverage length"
+    );
+    colour_l1_loss_where(features, &target.data, |i| covered[i], scale, grad)
+}
+
+/// [`colour_l1_loss`] with the target as planar values (`3 x H x W`, or more channels; 0..2
+/// used) and the covered pixels given by a predicate on the pixel index, so a caller need not
+/// build a target tensor or a mask. Same values, bit for bit.
+pub fn colour_l1_loss_where(
+    features: &Tensor,
+    target: &[f32],
+    covered: impl Fn(usize) -> bool,
+    scale: f32,
+    grad: &mut Tensor,
+) -> f64 {
+    let n = features.plane_len();
+    assert!(
+        features.c >= 3 && target.len() >= 3 * n,
         "colour l1: shapes"
     );
     assert!(
         grad.c == features.c && grad.h == features.h && grad.w == features.w,
         "colour l1: grad shape"
     );
-    let n = features.plane_len();
-    assert_eq!(covered.len(), n, "colour l1: coverage length");
-    let count = covered.iter().filter(|&&c| c).count();
+    let count = (0..n).filter(|&i| covered(i)).count();
     if count == 0 {
         return 0.0;
     }
@@ -79,9 +100,9 @@ pub fn colour_l1_loss(
     let g = (scale as f64 / denom) as f32;
     let mut total = 0.0f64;
     for c in 0..3 {
-        let (f, t) = (features.plane(c), target.plane(c));
+        let (f, t) = (features.plane(c), &target[c * n..(c + 1) * n]);
         let gr = grad.plane_mut(c);
-        for i in (0..n).filter(|&i| covered[i]) {
+        for i in (0..n).filter(|&i| covered(i)) {
             let d = f[i] - t[i];
             total += d.abs() as f64;
             if d != 0.0 {

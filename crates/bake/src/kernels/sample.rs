@@ -10,29 +10,30 @@
 //! covered pixels with finite uv. Backward: `dL/dT_k[texel, c] += sum over (p, tap) hitting
 //! that texel of w * dL/dF[c, p]`. Both use [`taps`], so they cannot disagree.
 //!
-//! The backward is a scatter (many pixels hit one texel). [`sample_backward`] makes it
-//! parallel without data races by bucketing the taps by texel range and letting each task
-//! own a range; every texel still sums its contributions in pixel order, so the result is
-//! bit-identical to the naive [`sample_backward_serial`] (kept as the test oracle) for any
-//! thread count. Measured on a 256 x 256 view (25k covered pixels, 16 channels, levels
-//! 512..64) on the 2-core dev machine; see `sample_backward_timing` in
-//! `tests/grad_sample_sh.rs`.
+//! The backward is a scatter (many pixels hit one texel). It runs in parallel without data
+//! races by listing the pixels under the texel bands their taps fall in and letting each task
+//! own a band; every texel still sums its contributions in pixel order, then tap order, so
+//! the result is bit-identical to the naive [`sample_backward_serial`] (kept as the test
+//! oracle) for any thread count.
+//!
+//! Training uses the pair [`sample_forward_taps`] / [`sample_backward_adam`]: the forward
+//! gives exactly [`sample_into`]'s values (same taps, same order of additions) and keeps each
+//! pixel's taps for the backward, which scatters band by band into a gradient buffer that
+//! stays in cache and takes the lazy Adam step of each touched texel at once. See
+//! `sample_backward_timing` in `tests/grad_sample_sh.rs` for timings.
 
 use dnr_runtime::gbuffer::GBuffer;
-use dnr_runtime::texture::{sample_into, taps, Pyramid, TextureError};
+use dnr_runtime::texture::{for_rows_of_planes, sample_into, taps, Level, Pyramid, TextureError, Wrap};
 use rayon::prelude::*;
+
+use super::adam::SparseAdam;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
 pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
     sample_into(pyr, gbuf, out)
 }
 
-fn check(
-    pyr: &Pyramid,
-    gbuf: &GBuffer,
-    d_out: &[f32],
-    grads: &[Vec<f32>],
-) -> Result<(), TextureError> {
+fn check_dout(pyr: &Pyramid, gbuf: &GBuffer, d_out: &[f32]) -> Result<(), TextureError> {
     pyr.validate()?;
     let expected = pyr.channels * gbuf.width * gbuf.height;
     if d_out.len() != expected || !gbuf.is_consistent() {
@@ -41,6 +42,16 @@ fn check(
             found: d_out.len(),
         });
     }
+    Ok(())
+}
+
+fn check(
+    pyr: &Pyramid,
+    gbuf: &GBuffer,
+    d_out: &[f32],
+    grads: &[Vec<f32>],
+) -> Result<(), TextureError> {
+    check_dout(pyr, gbuf, d_out)?;
     if grads.len() != pyr.levels.len() {
         return Err(TextureError::OutputSize {
             expected: pyr.levels.len(),
@@ -66,12 +77,12 @@ fn check(
 /// per level) and returns, per level, the ascending list of texels (`y * W_k + x`) that
 /// received a tap of non-zero weight, for a row-sparse optimiser.
 ///
-/// Parallel, race-free and deterministic: per level,
-/// 1. fixed chunks of [`PIXEL_CHUNK`] covered pixels compute their taps in parallel and
-///    bucket them by texel range (ranges of at least [`MIN_RANGE`] texels, at most
-///    [`MAX_RANGES`] of them), keeping pixel order within each bucket;
-/// 2. each texel range is then owned by one task, which walks the chunks in order and adds
-///    `w * dL/dF` straight into its texels.
+/// Parallel, race-free and deterministic:
+/// 1. fixed chunks of [`PIXEL_CHUNK`] covered pixels compute their four taps on every level
+///    in parallel and list each pixel under the texel bands (power-of-two texel ranges, about
+///    [`TARGET_BANDS`] per level) its taps fall in, keeping pixel order within each band;
+/// 2. each band is then owned by one task, which walks the chunks in order and adds
+///    `w * dL/dF` of the taps inside the band straight into its texels.
 ///
 /// Every texel therefore receives its contributions in pixel order, then tap order, exactly
 /// as the serial scatter does: the result is bit-identical to [`sample_backward_serial`]
@@ -84,76 +95,19 @@ pub fn sample_backward(
 ) -> Result<Vec<Vec<u32>>, TextureError> {
     check(pyr, gbuf, d_out, grads)?;
     let c = pyr.channels;
-    let n = gbuf.width * gbuf.height;
-
-    // Covered pixels, and their upstream gradient transposed to [P, C] so each tap reads C
-    // contiguous values.
-    let active: Vec<u32> = (0..n)
-        .filter(|&i| {
-            gbuf.coverage[i] != 0.0 && gbuf.uv[i][0].is_finite() && gbuf.uv[i][1].is_finite()
-        })
-        .map(|i| i as u32)
-        .collect();
-    let mut d_act = vec![0.0f32; active.len() * c];
-    d_act
-        .par_chunks_mut(c * PIXEL_CHUNK)
-        .zip(active.par_chunks(PIXEL_CHUNK))
-        .for_each(|(dst, px)| {
-            for (row, &p) in dst.chunks_exact_mut(c).zip(px) {
-                for (ch, v) in row.iter_mut().enumerate() {
-                    *v = d_out[ch * n + p as usize];
-                }
-            }
-        });
-
+    let vt = ViewTaps::build(pyr, gbuf, None);
+    let d_act = vt.gather_rows(d_out);
+    let gather = Gather { vt: &vt, d_act: &d_act };
     let mut touched = Vec::with_capacity(pyr.levels.len());
-    for (level, grad) in pyr.levels.iter().zip(grads.iter_mut()) {
-        let (lw, lh) = (level.width, level.height);
-        let texels = lw * lh;
-        let range = texels.div_ceil(MAX_RANGES).max(MIN_RANGE);
-        let n_ranges = texels.div_ceil(range);
-        // 1. Taps bucketed by texel range, per fixed pixel chunk.
-        let chunks: Vec<Buckets> = active
-            .par_chunks(PIXEL_CHUNK)
-            .enumerate()
-            .map(|(ci, px)| {
-                let mut taps_here = Vec::with_capacity(px.len() * 4);
-                for (k, &p) in px.iter().enumerate() {
-                    let [u, v] = gbuf.uv[p as usize];
-                    // Active pixels have finite uv and the level is non-empty: taps exist.
-                    let Some(tp) = taps(lw, lh, pyr.wrap_s, pyr.wrap_t, u, v) else {
-                        continue;
-                    };
-                    for (t, w) in tp {
-                        if w != 0.0 {
-                            taps_here.push(Entry {
-                                texel: t as u32,
-                                pixel: (ci * PIXEL_CHUNK + k) as u32,
-                                weight: w,
-                            });
-                        }
-                    }
-                }
-                Buckets::new(taps_here, range, n_ranges)
-            })
-            .collect();
-        // 2. Each task owns one texel range and adds in chunk (= pixel) order.
+    for (k, grad) in grads.iter_mut().enumerate() {
+        let band = 1usize << vt.levels[k].shift;
         let lists: Vec<Vec<u32>> = grad
-            .par_chunks_mut(range * c)
+            .par_chunks_mut(band * c)
             .enumerate()
-            .map(|(r, g)| {
-                let t0 = r * range;
+            .map(|(b, g)| {
                 let mut hit = vec![false; g.len() / c];
-                for b in &chunks {
-                    for e in b.range(r) {
-                        let local = e.texel as usize - t0;
-                        hit[local] = true;
-                        let d = &d_act[e.pixel as usize * c..][..c];
-                        for (gv, &dv) in g[local * c..(local + 1) * c].iter_mut().zip(d) {
-                            *gv += e.weight * dv;
-                        }
-                    }
-                }
+                gather.band(k, b, g, &mut hit);
+                let t0 = b * band;
                 hit.iter()
                     .enumerate()
                     .filter(|(_, &h)| h)
@@ -166,57 +120,465 @@ pub fn sample_backward(
     Ok(touched)
 }
 
-/// Covered pixels per bucketing task (fixed, so the work split never depends on the
-/// thread count).
-pub const PIXEL_CHUNK: usize = 2048;
-/// Most texel ranges per level.
-pub const MAX_RANGES: usize = 64;
-/// Fewest texels per range.
-pub const MIN_RANGE: usize = 1024;
-
-/// One non-zero tap: texel within the level, index into the active-pixel list, weight.
-#[derive(Clone, Copy)]
-struct Entry {
-    texel: u32,
-    pixel: u32,
-    weight: f32,
+/// [`sample_forward`] that also keeps every covered pixel's taps for
+/// [`sample_backward_adam`]: writes exactly [`sample_into`]'s values (each pixel adds its
+/// taps level by level, tap by tap, from zero), computing each tap once per step instead of
+/// once in the forward and again in the backward.
+pub fn sample_forward_taps(
+    pyr: &Pyramid,
+    gbuf: &GBuffer,
+    out: &mut [f32],
+) -> Result<ViewTaps, TextureError> {
+    check_dout(pyr, gbuf, out)?;
+    let c = pyr.channels;
+    let (w, h) = (gbuf.width, gbuf.height);
+    let mut f_act = Vec::new();
+    let vt = ViewTaps::build(pyr, gbuf, Some(&mut f_act));
+    if out.is_empty() {
+        return Ok(vt);
+    }
+    // The covered pixels' features ([P, C]) into the planes; zero elsewhere.
+    let active = &vt.active;
+    let row_start: Vec<usize> = (0..=h)
+        .map(|y| active.partition_point(|&p| (p as usize) < y * w))
+        .collect();
+    for_rows_of_planes(out, c, w, h, |y, planes| {
+        planes.iter_mut().for_each(|p| p.fill(0.0));
+        for a in row_start[y]..row_start[y + 1] {
+            let x = active[a] as usize - y * w;
+            for (plane, &f) in planes.iter_mut().zip(&f_act[a * c..(a + 1) * c]) {
+                plane[x] = f;
+            }
+        }
+    });
+    Ok(vt)
 }
 
-/// One chunk's taps grouped by texel range (stable: pixel order kept within a range).
-struct Buckets {
-    entries: Vec<Entry>,
-    /// `entries[start[r]..start[r + 1]]` fall in range r.
+/// [`sample_backward`] fused with the texel optimiser, on the taps [`sample_forward_taps`]
+/// kept: scatters `d_out` band by band into a small gradient buffer that stays in cache and
+/// at once takes the lazy Adam step of every texel it touched (`opts[k]`, one per level,
+/// with L2 `decay[k]`), then forgets the gradient. Exactly what `sample_backward` into zeroed
+/// gradients followed by [`SparseAdam::step`] on the touched lists computes, bit for bit and
+/// for any thread count, without full-size gradient buffers, touched lists or a second pass
+/// over the texture. `pyr` must have the shape `vt` was made for.
+pub fn sample_backward_adam(
+    vt: &ViewTaps,
+    pyr: &mut Pyramid,
+    d_out: &[f32],
+    opts: &mut [SparseAdam],
+    decay: &[f32],
+) -> Result<(), TextureError> {
+    pyr.validate()?;
+    let c = pyr.channels;
+    let same_shape = vt.channels == c
+        && vt.dims.len() == pyr.levels.len()
+        && vt.dims.iter().zip(&pyr.levels).all(|(&d, l)| d == (l.width, l.height));
+    if !same_shape || d_out.len() != c * vt.pixels {
+        return Err(TextureError::OutputSize {
+            expected: c * vt.pixels,
+            found: d_out.len(),
+        });
+    }
+    if opts.len() != pyr.levels.len() || decay.len() != pyr.levels.len() {
+        return Err(TextureError::OutputSize {
+            expected: pyr.levels.len(),
+            found: opts.len().min(decay.len()),
+        });
+    }
+    for (k, (o, l)) in opts.iter().zip(&pyr.levels).enumerate() {
+        if o.width() != c || o.rows() != l.width * l.height {
+            return Err(TextureError::LevelSize {
+                level: k,
+                width: l.width,
+                height: l.height,
+                channels: c,
+                expected: l.data.len(),
+                found: o.rows() * o.width(),
+            });
+        }
+    }
+    let d_act = vt.gather_rows(d_out);
+    let gather = Gather { vt, d_act: &d_act };
+    // Every texel band of every level that some pixel taps is one task.
+    let mut work = Vec::new();
+    for (k, (level, opt)) in pyr.levels.iter_mut().zip(opts.iter_mut()).enumerate() {
+        let lt = &vt.levels[k];
+        for (b, blk) in opt
+            .row_blocks(&mut level.data, 1 << lt.shift)
+            .into_iter()
+            .enumerate()
+        {
+            if lt.chunks.iter().any(|t| !t.band(b).is_empty()) {
+                work.push((k, b, blk));
+            }
+        }
+    }
+    let max_band = vt.levels.iter().map(|l| 1usize << l.shift).max().unwrap_or(0);
+    work.into_par_iter().for_each_init(
+        // Kept all zero / false between tasks: each task clears what it set.
+        || (vec![0.0f32; max_band * c], vec![false; max_band]),
+        |(g, hit), (k, b, mut blk)| {
+            let rows = blk.len();
+            let (g, hit) = (&mut g[..rows * c], &mut hit[..rows]);
+            gather.band(k, b, g, hit);
+            for (i, h) in hit.iter_mut().enumerate() {
+                if *h {
+                    let gi = &mut g[i * c..(i + 1) * c];
+                    blk.update(i, gi, decay[k]);
+                    gi.fill(0.0);
+                    *h = false;
+                }
+            }
+        },
+    );
+    Ok(())
+}
+
+/// Covered pixels per task of the forward and of the bucketing (fixed, so the work split
+/// never depends on the thread count; at most 65536, pixels within a chunk are `u16`).
+pub const PIXEL_CHUNK: usize = 2048;
+/// Bands per level the band size aims at (bands are powers of two of texels).
+pub const TARGET_BANDS: usize = 64;
+/// Fewest texels per band.
+pub const MIN_BAND: usize = 256;
+
+/// The four bilinear taps of one pixel on one level.
+#[derive(Clone, Copy, Default)]
+struct Tap4 {
+    texel: [u32; 4],
+    weight: [f32; 4],
+}
+
+/// One pixel chunk's taps on one level, and its pixels bucketed by texel band: a pixel is
+/// listed (in pixel order) in every band one of its taps falls in.
+struct ChunkTaps {
+    /// Per pixel of the chunk.
+    taps: Vec<Tap4>,
+    /// Pixel indices within the chunk, grouped by band.
+    pixels: Vec<u16>,
+    /// `pixels[start[b]..start[b + 1]]` tap band b.
     start: Vec<u32>,
 }
 
-impl Buckets {
-    fn new(taps: Vec<Entry>, range: usize, n_ranges: usize) -> Self {
-        let mut start = vec![0u32; n_ranges + 1];
-        for e in &taps {
-            start[e.texel as usize / range + 1] += 1;
-        }
-        for r in 0..n_ranges {
-            start[r + 1] += start[r];
-        }
-        let mut fill = start.clone();
-        let mut entries = vec![
-            Entry {
-                texel: 0,
-                pixel: 0,
-                weight: 0.0
-            };
-            taps.len()
-        ];
-        for e in taps {
-            let r = e.texel as usize / range;
-            entries[fill[r] as usize] = e;
-            fill[r] += 1;
-        }
-        Buckets { entries, start }
+impl ChunkTaps {
+    fn band(&self, b: usize) -> &[u16] {
+        &self.pixels[self.start[b] as usize..self.start[b + 1] as usize]
     }
 
-    fn range(&self, r: usize) -> &[Entry] {
-        &self.entries[self.start[r] as usize..self.start[r + 1] as usize]
+    /// Counting sort of the chunk's pixels by band (stable: pixel order kept).
+    fn new(taps: Vec<Tap4>, shift: u32, bands: usize) -> Self {
+        let mut start = vec![0u32; bands + 1];
+        for t in &taps {
+            tap_bands(t, shift, |b| start[b + 1] += 1);
+        }
+        for b in 0..bands {
+            start[b + 1] += start[b];
+        }
+        let mut fill = start.clone();
+        let mut pixels = vec![0u16; start[bands] as usize];
+        for (i, t) in taps.iter().enumerate() {
+            tap_bands(t, shift, |b| {
+                pixels[fill[b] as usize] = i as u16;
+                fill[b] += 1;
+            });
+        }
+        ChunkTaps {
+            taps,
+            pixels,
+            start,
+        }
+    }
+}
+
+/// Calls `f` once for each distinct band among the taps of `t` (zero-weight taps included;
+/// the scatter skips them).
+#[inline(always)]
+fn tap_bands(t: &Tap4, shift: u32, mut f: impl FnMut(usize)) {
+    let [b0, b1, b2, b3] = t.texel.map(|x| (x >> shift) as usize);
+    // Taps 0 and 1 share a texel row, as do 2 and 3; with rows inside one band (the usual
+    // case) a pixel has one or two bands.
+    if b0 == b1 && b2 == b3 {
+        f(b0);
+        if b2 != b0 {
+            f(b2);
+        }
+        return;
+    }
+    f(b0);
+    if b1 != b0 {
+        f(b1);
+    }
+    if b2 != b0 && b2 != b1 {
+        f(b2);
+    }
+    if b3 != b0 && b3 != b1 && b3 != b2 {
+        f(b3);
+    }
+}
+
+/// One level's texel bands (`1 << shift` texels each) and every chunk's taps on it.
+struct LevelTaps {
+    shift: u32,
+    chunks: Vec<ChunkTaps>,
+}
+
+/// The taps of every covered pixel of a view on every level of a pyramid, bucketed for the
+/// scatter: what [`sample_forward_taps`] hands to [`sample_backward_adam`].
+pub struct ViewTaps {
+    channels: usize,
+    /// Pixels of the view (`width * height`).
+    pixels: usize,
+    /// `(width, height)` of each level.
+    dims: Vec<(usize, usize)>,
+    /// Covered pixels with finite uv, ascending.
+    active: Vec<u32>,
+    levels: Vec<LevelTaps>,
+}
+
+impl ViewTaps {
+    /// Taps (inputs checked), and with `f_act` the features of the active pixels (`[P, C]`).
+    fn build(pyr: &Pyramid, gbuf: &GBuffer, f_act: Option<&mut Vec<f32>>) -> Self {
+        let c = pyr.channels;
+        let n = gbuf.width * gbuf.height;
+        let active: Vec<u32> = (0..n)
+            .filter(|&i| {
+                gbuf.coverage[i] != 0.0 && gbuf.uv[i][0].is_finite() && gbuf.uv[i][1].is_finite()
+            })
+            .map(|i| i as u32)
+            .collect();
+        let shifts: Vec<u32> = pyr
+            .levels
+            .iter()
+            .map(|l| {
+                let band = (l.width * l.height)
+                    .div_ceil(TARGET_BANDS)
+                    .next_power_of_two()
+                    .max(MIN_BAND);
+                band.trailing_zeros()
+            })
+            .collect();
+        let (ws, wt) = (pyr.wrap_s, pyr.wrap_t);
+        let chunk = |px: &[u32], mut acc: Option<&mut [f32]>| -> Vec<ChunkTaps> {
+            pyr.levels
+                .iter()
+                .zip(&shifts)
+                .map(|(l, &shift)| {
+                    let taps = level_taps(l, c, ws, wt, &gbuf.uv, px, acc.as_deref_mut());
+                    ChunkTaps::new(taps, shift, (l.width * l.height).div_ceil(1 << shift))
+                })
+                .collect()
+        };
+        // [chunk][level]
+        let mut per_chunk: Vec<Vec<ChunkTaps>> = match f_act {
+            Some(f) => {
+                *f = vec![0.0; active.len() * c];
+                active
+                    .par_chunks(PIXEL_CHUNK)
+                    .zip(f.par_chunks_mut(PIXEL_CHUNK * c))
+                    .map(|(px, acc)| chunk(px, Some(acc)))
+                    .collect()
+            }
+            None => active
+                .par_chunks(PIXEL_CHUNK)
+                .map(|px| chunk(px, None))
+                .collect(),
+        };
+        let mut levels: Vec<LevelTaps> = shifts
+            .iter()
+            .map(|&shift| LevelTaps {
+                shift,
+                chunks: Vec::with_capacity(per_chunk.len()),
+            })
+            .collect();
+        for chunk in &mut per_chunk {
+            for (l, t) in levels.iter_mut().zip(chunk.drain(..)) {
+                l.chunks.push(t);
+            }
+        }
+        ViewTaps {
+            channels: c,
+            pixels: n,
+            dims: pyr.levels.iter().map(|l| (l.width, l.height)).collect(),
+            active,
+            levels,
+        }
+    }
+
+    /// The upstream gradient `[C, H, W]` at the active pixels, transposed to `[P, C]` (each
+    /// tap of the scatter reads C contiguous values).
+    fn gather_rows(&self, d_out: &[f32]) -> Vec<f32> {
+        let (c, n) = (self.channels, self.pixels);
+        let mut d_act = vec![0.0f32; self.active.len() * c];
+        d_act
+            .par_chunks_mut(c * PIXEL_CHUNK)
+            .zip(self.active.par_chunks(PIXEL_CHUNK))
+            .for_each(|(dst, px)| {
+                // Blocks of pixels, plane by plane: one input stream at a time, the output
+                // block stays in L1.
+                for (dst, px) in dst.chunks_mut(c * 64).zip(px.chunks(64)) {
+                    for ch in 0..c {
+                        let plane = &d_out[ch * n..(ch + 1) * n];
+                        for (row, &p) in dst.chunks_exact_mut(c).zip(px) {
+                            row[ch] = plane[p as usize];
+                        }
+                    }
+                }
+            });
+        d_act
+    }
+}
+
+/// The taps of the pixels `px` on `level`; with `acc` (`[px][C]`) also adds each pixel's
+/// bilinear sample into it, tap by tap.
+fn level_taps(
+    level: &Level,
+    c: usize,
+    ws: Wrap,
+    wt: Wrap,
+    uv: &[[f32; 2]],
+    px: &[u32],
+    acc: Option<&mut [f32]>,
+) -> Vec<Tap4> {
+    match (acc, c) {
+        (None, _) => px
+            .iter()
+            .map(|&p| {
+                let [u, v] = uv[p as usize];
+                tap4(taps(level.width, level.height, ws, wt, u, v))
+            })
+            .collect(),
+        (Some(acc), 16) => level_taps_n::<16>(level, ws, wt, uv, px, acc),
+        (Some(acc), 12) => level_taps_n::<12>(level, ws, wt, uv, px, acc),
+        (Some(acc), 8) => level_taps_n::<8>(level, ws, wt, uv, px, acc),
+        (Some(acc), 4) => level_taps_n::<4>(level, ws, wt, uv, px, acc),
+        (Some(acc), c) => px
+            .iter()
+            .zip(acc.chunks_exact_mut(c))
+            .map(|(&p, a)| {
+                let [u, v] = uv[p as usize];
+                let tp = taps(level.width, level.height, ws, wt, u, v);
+                for &(t, w) in tp.iter().flatten() {
+                    for (o, &x) in a.iter_mut().zip(&level.data[t * c..(t + 1) * c]) {
+                        *o += w * x;
+                    }
+                }
+                tap4(tp)
+            })
+            .collect(),
+    }
+}
+
+/// [`level_taps`] with an accumulator, for a channel count known at compile time (the sum
+/// stays in registers across the taps).
+#[inline]
+fn level_taps_n<const C: usize>(
+    level: &Level,
+    ws: Wrap,
+    wt: Wrap,
+    uv: &[[f32; 2]],
+    px: &[u32],
+    acc: &mut [f32],
+) -> Vec<Tap4> {
+    px.iter()
+        .zip(acc.chunks_exact_mut(C))
+        .map(|(&p, a)| {
+            let [u, v] = uv[p as usize];
+            let tp = taps(level.width, level.height, ws, wt, u, v);
+            if let Some(tp) = tp {
+                let a: &mut [f32; C] = a.try_into().expect("C values");
+                let mut s = *a;
+                for (t, w) in tp {
+                    let x: [f32; C] = level.data[t * C..(t + 1) * C]
+                        .try_into()
+                        .expect("C values");
+                    for (o, x) in s.iter_mut().zip(x) {
+                        *o += w * x;
+                    }
+                }
+                *a = s;
+            }
+            tap4(tp)
+        })
+        .collect()
+}
+
+/// The record of [`taps`]' result; all weights zero (never scattered) without taps, which
+/// active pixels (finite uv, non-empty levels) always have.
+#[inline(always)]
+fn tap4(tp: Option<[(usize, f32); 4]>) -> Tap4 {
+    match tp {
+        Some(tp) => Tap4 {
+            texel: tp.map(|(t, _)| t as u32),
+            weight: tp.map(|(_, w)| w),
+        },
+        None => Tap4::default(),
+    }
+}
+
+/// Step 2 of the scatter: the taps of a view and the upstream gradient at its active pixels.
+struct Gather<'a> {
+    vt: &'a ViewTaps,
+    /// `[P, C]`.
+    d_act: &'a [f32],
+}
+
+impl Gather<'_> {
+    /// Adds every tap's `w * dL/dF` that falls in band `b` of level `k` into `g` (the band's
+    /// texels, `[texel][C]`) in pixel order, then tap order, and marks the texels hit.
+    fn band(&self, k: usize, b: usize, g: &mut [f32], hit: &mut [bool]) {
+        match self.vt.channels {
+            16 => self.band_n::<16>(k, b, g, hit),
+            12 => self.band_n::<12>(k, b, g, hit),
+            8 => self.band_n::<8>(k, b, g, hit),
+            4 => self.band_n::<4>(k, b, g, hit),
+            c => self.each_tap(k, b, hit, |local, w, p| {
+                let d = &self.d_act[p * c..(p + 1) * c];
+                for (gv, &dv) in g[local * c..(local + 1) * c].iter_mut().zip(d) {
+                    *gv += w * dv;
+                }
+            }),
+        }
+    }
+
+    /// [`Gather::band`] for a channel count known at compile time.
+    #[inline]
+    fn band_n<const C: usize>(&self, k: usize, b: usize, g: &mut [f32], hit: &mut [bool]) {
+        self.each_tap(k, b, hit, |local, w, p| {
+            // Copies in and out, so the compiler sees no aliasing and uses vector registers.
+            let d: [f32; C] = self.d_act[p * C..(p + 1) * C]
+                .try_into()
+                .expect("C values");
+            let gv: &mut [f32; C] = (&mut g[local * C..(local + 1) * C])
+                .try_into()
+                .expect("C values");
+            let mut acc = *gv;
+            for (a, dv) in acc.iter_mut().zip(d) {
+                *a += w * dv;
+            }
+            *gv = acc;
+        });
+    }
+
+    /// Calls `f(texel within the band, weight, active pixel)` for every non-zero tap in band
+    /// `b` of level `k`, in pixel order, then tap order, marking the texels in `hit`.
+    #[inline(always)]
+    fn each_tap(&self, k: usize, b: usize, hit: &mut [bool], mut f: impl FnMut(usize, f32, usize)) {
+        let lt = &self.vt.levels[k];
+        let lo = (b << lt.shift) as u32;
+        let len = hit.len() as u32;
+        for (ci, chunk) in lt.chunks.iter().enumerate() {
+            for &i in chunk.band(b) {
+                let t = &chunk.taps[i as usize];
+                let p = ci * PIXEL_CHUNK + i as usize;
+                for (&tx, &w) in t.texel.iter().zip(&t.weight) {
+                    let local = tx.wrapping_sub(lo);
+                    if w != 0.0 && local < len {
+                        hit[local as usize] = true;
+                        f(local as usize, w, p);
+                    }
+                }
+            }
+        }
     }
 }
 

@@ -7,6 +7,7 @@ pub mod config;
 pub mod init;
 pub mod views;
 
+use std::borrow::Cow;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -21,7 +22,8 @@ use serde::Serialize;
 use crate::eval::metrics::{view_error, Rgba, ViewError};
 use crate::export::ExportNet;
 use crate::kernels::adam::{Adam, AdamConfig, SparseAdam};
-use crate::kernels::loss::{colour_l1_loss, l1_loss, level_lambda};
+use crate::kernels::loss::{colour_l1_loss_where, l1_loss, level_lambda};
+use crate::kernels::sample::{sample_backward_adam, sample_forward_taps};
 use crate::kernels::unet::UNetTrain;
 use config::{Arch, TrainConfig};
 use views::View;
@@ -87,7 +89,6 @@ pub struct Trainer {
     pub out_ch: usize,
     net: Net,
     tex_adam: Vec<SparseAdam>,
-    tex_grads: Vec<Vec<f32>>,
     rng: ChaCha8Rng,
     /// Steps taken.
     pub step: u64,
@@ -156,7 +157,6 @@ impl Trainer {
             .iter()
             .map(|l| SparseAdam::new(l.width * l.height, c, tex_cfg))
             .collect();
-        let tex_grads = pyr.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
         let net = match cfg.arch {
             Arch::None => Net::None,
             Arch::Unet => {
@@ -186,7 +186,6 @@ impl Trainer {
             out_ch,
             net,
             tex_adam,
-            tex_grads,
             step: 0,
             loss_sum: 0.0,
             loss_n: 0,
@@ -197,15 +196,16 @@ impl Trainer {
         self.cfg.sh.then_some((SH_DEGREE, SH_FIRST))
     }
 
-    /// Picks a training view and a crop of it that shows object pixels.
-    fn sample_crop(&mut self, views: &[View]) -> View {
+    /// Picks a training view and a crop of it that shows object pixels (a whole frame is
+    /// borrowed, not copied).
+    fn sample_crop<'v>(&mut self, views: &'v [View]) -> Cow<'v, View> {
         for _ in 0..16 {
             let v = &views[self.rng.random_range(0..views.len())];
             let (w, h) = (v.width(), v.height());
             let cs = self.cfg.crop as usize;
             if cs == 0 || (cs >= w && cs >= h) {
                 if v.gbuf.covered_count() > 0 {
-                    return v.clone();
+                    return Cow::Borrowed(v);
                 }
                 continue;
             }
@@ -214,26 +214,35 @@ impl Trainer {
             let y0 = self.rng.random_range(0..=h - ch);
             let c = v.crop(x0, y0, cw, ch);
             if c.gbuf.covered_count() > 0 {
-                return c;
+                return Cow::Owned(c);
             }
         }
-        views
-            .iter()
-            .find(|v| v.gbuf.covered_count() > 0)
-            .expect("checked in new")
-            .clone()
+        Cow::Borrowed(
+            views
+                .iter()
+                .find(|v| v.gbuf.covered_count() > 0)
+                .expect("checked in new"),
+        )
     }
 
-    /// The feature image of a view: sampled pyramid (C x H x W), before and after SH.
-    fn features(&self, v: &View) -> Result<(Tensor, Tensor), TrainError> {
-        let c = self.pyr.channels;
-        let mut raw = Tensor::zeros(c, v.height(), v.width());
-        sample_into(&self.pyr, &v.gbuf, &mut raw.data)
+    /// The feature image of a view: the sampled pyramid (C x H x W) after SH. SH never
+    /// touches channels 0..2 (`SH_FIRST >= 3`), so those are still the raw features the
+    /// mean-colour loss supervises.
+    fn features(&self, v: &View) -> Result<Tensor, TrainError> {
+        // sample_into writes every value.
+        let mut x = Tensor::scratch(self.pyr.channels, v.height(), v.width());
+        sample_into(&self.pyr, &v.gbuf, &mut x.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
-        let mut x = raw.clone();
+        self.sh_modulate(v, &mut x.data)?;
+        Ok(x)
+    }
+
+    /// Multiplies the SH channels of a `C x H x W` image by the basis of the view's directions
+    /// (the SH layer's forward, and, being linear and diagonal, its backward).
+    fn sh_modulate(&self, v: &View, data: &mut [f32]) -> Result<(), TrainError> {
         if let Some((deg, first)) = self.sh() {
             dnr_runtime::sh::modulate(
-                &mut x.data,
+                data,
                 &v.gbuf.view_dir,
                 &v.gbuf.coverage,
                 first as usize,
@@ -241,64 +250,45 @@ impl Trainer {
             )
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         }
-        Ok((raw, x))
+        Ok(())
     }
 
     /// One optimisation step on one crop; returns the photometric L1.
+    ///
+    /// The network's gradients are zero between steps (the fused Adam step clears them),
+    /// and large buffers go back to the runtime's tensor pool, so a step allocates little.
     pub fn step(&mut self, views: &[View]) -> Result<f64, TrainError> {
         let v = self.sample_crop(views);
+        let v: &View = &v;
         let (h, w) = (v.height(), v.width());
         let n = h * w;
-        let (raw, x) = self.features(&v)?;
-        let target = Tensor::from_vec(3, h, w, v.target.clone())
+        // The features (what `features` computes, bit for bit), keeping the taps for the
+        // texture's backward. SH leaves channels 0..2 alone, so after it `x` still holds the
+        // raw colour features the mean-colour loss supervises.
+        const _: () = assert!(SH_FIRST >= 3, "the colour loss reads channels 0..2 after SH");
+        let mut x = Tensor::scratch(self.pyr.channels, h, w);
+        let taps = sample_forward_taps(&self.pyr, &v.gbuf, &mut x.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        self.sh_modulate(v, &mut x.data)?;
 
-        // Forward to straight colour and alpha, then composite on white as the target is.
-        let (colour, alpha, acts) = match &self.net {
+        // Forward to straight colour and alpha, composite on white as the target is, L1, and
+        // backward to the feature image.
+        let (loss, mut dx) = match &mut self.net {
             Net::None => {
                 let colour: Vec<f32> = x.data[..3 * n].iter().map(|&t| t.clamp(0.0, 1.0)).collect();
-                (colour, v.gbuf.coverage.clone(), None)
-            }
-            Net::Unet { net, .. } => {
-                let (y, acts) = net
-                    .forward(&x)
+                let alpha = &v.gbuf.coverage;
+                let mut comp = Tensor::zeros(3, h, w);
+                for c in 0..3 {
+                    for i in 0..n {
+                        comp.data[c * n + i] = colour[c * n + i] * alpha[i] + (1.0 - alpha[i]);
+                    }
+                }
+                let target = Tensor::from_vec(3, h, w, v.target.clone())
                     .map_err(|e| TrainError::Kernel(e.to_string()))?;
-                let colour: Vec<f32> = y.data[..3 * n].iter().map(|&t| 0.5 * (t + 1.0)).collect();
-                let alpha = if self.out_ch == 4 {
-                    y.data[3 * n..4 * n]
-                        .iter()
-                        .map(|&t| 0.5 * (t + 1.0))
-                        .collect()
-                } else {
-                    v.gbuf.coverage.clone()
-                };
-                (colour, alpha, Some((y, acts)))
-            }
-        };
-        let mut comp = Tensor::zeros(3, h, w);
-        for c in 0..3 {
-            for i in 0..n {
-                comp.data[c * n + i] = colour[c * n + i] * alpha[i] + (1.0 - alpha[i]);
-            }
-        }
-        let mut dcomp = Tensor::zeros(3, h, w);
-        let loss = l1_loss(&comp, &target, None, 1.0, &mut dcomp);
-        let mut dalpha = vec![0.0f32; n];
-        if self.out_ch == 4 {
-            let pa = Tensor::from_vec(1, h, w, alpha.clone())
-                .map_err(|e| TrainError::Kernel(e.to_string()))?;
-            let ta = Tensor::from_vec(1, h, w, v.alpha.clone())
-                .map_err(|e| TrainError::Kernel(e.to_string()))?;
-            let mut da = Tensor::zeros(1, h, w);
-            l1_loss(&pa, &ta, None, 1.0, &mut da);
-            dalpha = da.data;
-        }
-
-        // Backward to the feature image.
-        let mut dx = Tensor::zeros(self.pyr.channels, h, w);
-        match (&mut self.net, acts) {
-            (Net::None, _) => {
+                let mut dcomp = Tensor::zeros(3, h, w);
+                let loss = l1_loss(&comp, &target, None, 1.0, &mut dcomp);
                 // colour = clamp(x): gradient only where x is inside [0, 1].
+                let mut dx = Tensor::zeros(self.pyr.channels, h, w);
                 for ((d, &x), (&g, &a)) in dx.data[..3 * n]
                     .iter_mut()
                     .zip(&x.data[..3 * n])
@@ -308,72 +298,60 @@ impl Trainer {
                         *d = g * a;
                     }
                 }
+                (loss, dx)
             }
-            (Net::Unet { net, .. }, Some((y, acts))) => {
-                // comp = colour * a + (1 - a), colour = (t + 1) / 2, a = (t3 + 1) / 2.
+            Net::Unet { net, .. } => {
+                let (y, acts) = net
+                    .forward(&x)
+                    .map_err(|e| TrainError::Kernel(e.to_string()))?;
                 let mut dy = Tensor::zeros(self.out_ch, h, w);
-                let (dcol, dal) = dy.data.split_at_mut(3 * n);
-                for (c, (dcol_c, dcomp_c)) in
-                    dcol.chunks_mut(n).zip(dcomp.data.chunks(n)).enumerate()
-                {
-                    let col_c = &colour[c * n..(c + 1) * n];
-                    for (i, (d, &g)) in dcol_c.iter_mut().zip(dcomp_c).enumerate() {
-                        *d = 0.5 * g * alpha[i];
-                        dalpha[i] += g * (col_c[i] - 1.0);
-                    }
-                }
-                if self.out_ch == 4 {
-                    for (d, &g) in dal.iter_mut().zip(&dalpha) {
-                        *d = 0.5 * g;
-                    }
-                }
-                let _ = y;
-                net.zero_grad();
-                dx = net.backward(&acts, &dy);
+                let loss = unet_photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                y.recycle();
+                let dx = net.backward(&acts, &dy);
+                dy.recycle();
+                (loss, dx)
             }
-            (Net::Unet { .. }, None) => unreachable!("U-Net forward always keeps activations"),
-        }
+        };
         // SH modulation is linear and diagonal: its backward is itself.
-        if let Some((deg, first)) = self.sh() {
-            dnr_runtime::sh::modulate(
-                &mut dx.data,
-                &v.gbuf.view_dir,
-                &v.gbuf.coverage,
-                first as usize,
-                deg,
-            )
-            .map_err(|e| TrainError::Kernel(e.to_string()))?;
-        }
+        self.sh_modulate(v, &mut dx.data)?;
         // Mean-colour supervision of channels 0..2 over covered object pixels.
         if self.cfg.mean_colour_weight > 0.0 && self.cfg.arch != Arch::None {
-            let covered: Vec<bool> = (0..n)
-                .map(|i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5)
-                .collect();
-            colour_l1_loss(
-                &raw,
-                &target,
-                &covered,
+            colour_l1_loss_where(
+                &x,
+                &v.target,
+                |i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5,
                 self.cfg.mean_colour_weight,
                 &mut dx,
             );
         }
+        x.recycle();
 
-        // Texture: scatter into the levels, then lazy Adam on the touched texels only.
-        let touched = crate::kernels::sample::sample_backward(
-            &self.pyr,
-            &v.gbuf,
+        // Texture: scatter into the levels fused with lazy Adam on the touched texels only.
+        let k_total = self.pyr.levels.len();
+        let decay: Vec<f32> = self
+            .pyr
+            .levels
+            .iter()
+            .enumerate()
+            .map(|(k, lvl)| 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32)
+            .collect();
+        sample_backward_adam(
+            &taps,
+            &mut self.pyr,
             &dx.data,
-            &mut self.tex_grads,
+            &mut self.tex_adam,
+            &decay,
         )
         .map_err(|e| TrainError::Kernel(e.to_string()))?;
-        let k_total = self.pyr.levels.len();
-        for (k, lvl) in self.pyr.levels.iter_mut().enumerate() {
-            let decay = 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32;
-            self.tex_adam[k].step(&mut lvl.data, &mut self.tex_grads[k], &touched[k], decay);
-        }
+        dx.recycle();
         if let Net::Unet { net, adam } = &mut self.net {
-            for ((wt, g), a) in net.weights.iter_mut().zip(&net.grads).zip(adam.iter_mut()) {
-                a.step(wt, g);
+            for ((wt, g), a) in net
+                .weights
+                .iter_mut()
+                .zip(net.grads.iter_mut())
+                .zip(adam.iter_mut())
+            {
+                a.step_zero_grad(wt, g);
             }
         }
         self.step += 1;
@@ -423,7 +401,7 @@ impl Trainer {
         for v in views {
             let (h, w) = (v.height(), v.width());
             let n = h * w;
-            let (_, x) = self.features(v)?;
+            let x = self.features(v)?;
             let (colour, alpha): (Vec<f32>, Vec<f32>) = match &unet {
                 None => (
                     x.data[..3 * n].iter().map(|t| t.clamp(0.0, 1.0)).collect(),
@@ -598,6 +576,55 @@ fn uvs_in_unit_square(views: &[View]) -> bool {
             c == 0.0 || (-1e-3..=1.001).contains(&uv[0]) && (-1e-3..=1.001).contains(&uv[1])
         })
     })
+}
+
+/// The photometric loss of a U-Net output `y` (after tanh, `out_ch x n`, n = the view's
+/// pixels) and its gradient, written to `dy` (same shape), in one pass:
+/// `colour = (t + 1) / 2`, `alpha = (t3 + 1) / 2` with 4 outputs (else the coverage),
+/// `comp = colour * alpha + (1 - alpha)` (on white, like the target), `L = mean |comp - target|`
+/// over 3 x n, plus with 4 outputs the mean L1 of alpha against the mask (gradient only).
+/// The arithmetic is [`l1_loss`]'s, term by term, so the values are the same bit for bit.
+fn unet_photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64 {
+    let n = v.gbuf.len();
+    assert!(
+        y.len() == out_ch * n && dy.len() == out_ch * n && v.target.len() >= 3 * n,
+        "photometric loss: shapes"
+    );
+    // l1_loss's scale / (channels * pixels) for the colour and the alpha term.
+    let g = (1.0f64 / (3.0 * n as f64)) as f32;
+    let ga = (1.0f64 / n as f64) as f32;
+    let (ycol, yal) = y.split_at(3 * n);
+    let (dcol, dal) = dy.split_at_mut(3 * n);
+    let mut sums = [0.0f64; 3];
+    for i in 0..n {
+        let a = if out_ch == 4 {
+            0.5 * (yal[i] + 1.0)
+        } else {
+            v.gbuf.coverage[i]
+        };
+        // dL/dalpha: the alpha L1 first, then each colour channel's share.
+        let mut da = 0.0f32;
+        if out_ch == 4 {
+            let d = a - v.alpha[i];
+            if d != 0.0 {
+                da = ga * d.signum();
+            }
+        }
+        for (c, s) in sums.iter_mut().enumerate() {
+            let col = 0.5 * (ycol[c * n + i] + 1.0);
+            let comp = col * a + (1.0 - a);
+            let d = comp - v.target[c * n + i];
+            *s += d.abs() as f64;
+            let dcomp = if d != 0.0 { g * d.signum() } else { 0.0 };
+            // comp = colour * a + (1 - a), colour = (t + 1) / 2.
+            dcol[c * n + i] = 0.5 * dcomp * a;
+            da += dcomp * (col - 1.0);
+        }
+        if out_ch == 4 {
+            dal[i] = 0.5 * da;
+        }
+    }
+    (sums[0] + sums[1] + sums[2]) / (3.0 * n as f64)
 }
 
 /// Progress of a run that a checkpoint carries besides the trainer.
