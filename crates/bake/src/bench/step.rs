@@ -15,8 +15,8 @@ use crate::train::Trainer;
 /// reference (shared/peers/dnr_torch.py) so `dnr bench train --torch` compares like with like:
 /// with `x, y` the pixel's position in [0, 1] (`linspace`, ends included) and a random phase
 /// `ph`, a smooth, slightly warped uv field covering about 80% of the texture
-/// (`u = 0.1 + 0.8 x + 0.03 sin(6.28 (2 y) + ph)`, `v = 0.1 + 0.8 (1 - y) + 0.03 sin(6.28 (3 x)
-/// + ph)`), coverage on the disc `(x - .5)^2 + (y - .5)^2 < 0.19` (about 60% of the frame),
+/// (`u = 0.1 + 0.8 x + 0.03 sin(6.28 (2 y) + ph)`,
+/// `v = 0.1 + 0.8 (1 - y) + 0.03 sin(6.28 (3 x) + ph)`), coverage on the disc `(x - .5)^2 + (y - .5)^2 < 0.19` (about 60% of the frame),
 /// view directions `normalize(x - .5, y - .5, -1)`, a random target colour and the disc as the
 /// target alpha. Neighbouring pixels hit neighbouring texels, as on a rasterised mesh.
 pub fn synthetic_view(size: usize, seed: u64) -> View {
@@ -31,6 +31,7 @@ pub fn synthetic_view(size: usize, seed: u64) -> View {
         }
     };
     // The reference uses 6.28 for 2 pi; keep its numbers.
+    #[allow(clippy::approx_constant)]
     let tau = 6.28f32;
     let ph = r.random::<f32>() * tau;
     let mut g = GBuffer::new(size, size);
