@@ -235,7 +235,11 @@ fn invalid_samples_give_expected_codes_without_panicking() {
             .iter()
             .any(|c| code_info(c).unwrap().severity == Severity::Error);
         // invalid/ files all carry an error (dnr validate exits 1); warnings/ files none.
-        assert_eq!(has_error, file.starts_with("invalid/"), "{file}: folder and severity disagree");
+        assert_eq!(
+            has_error,
+            file.starts_with("invalid/"),
+            "{file}: folder and severity disagree"
+        );
         let read = catch_unwind(|| read_asset(&path))
             .unwrap_or_else(|_| panic!("{file}: read_asset panicked"));
         assert_eq!(

@@ -347,8 +347,7 @@ pub fn sample_into(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(),
                     for &x in &px {
                         let x = x as usize;
                         let [u, v] = uv[x];
-                        let Some(tp) = taps(l.width, l.height, pyr.wrap_s, pyr.wrap_t, u, v)
-                        else {
+                        let Some(tp) = taps(l.width, l.height, pyr.wrap_s, pyr.wrap_t, u, v) else {
                             continue;
                         };
                         let a = &mut acc[x * c..(x + 1) * c];
@@ -382,9 +381,7 @@ fn accumulate_row<const C: usize>(pyr: &Pyramid, uv: &[[f32; 2]], px: &[u32], ac
             let Some(tp) = taps(l.width, l.height, pyr.wrap_s, pyr.wrap_t, u, v) else {
                 continue;
             };
-            let a: &mut [f32; C] = (&mut acc[x * C..(x + 1) * C])
-                .try_into()
-                .expect("C values");
+            let a: &mut [f32; C] = (&mut acc[x * C..(x + 1) * C]).try_into().expect("C values");
             let mut s = *a;
             for (t, wt) in tp {
                 let texel: &[f32; C] = l.data[t * C..(t + 1) * C].try_into().expect("C values");

@@ -23,7 +23,9 @@
 //! `sample_backward_timing` in `tests/grad_sample_sh.rs` for timings.
 
 use dnr_runtime::gbuffer::GBuffer;
-use dnr_runtime::texture::{for_rows_of_planes, sample_into, taps, Level, Pyramid, TextureError, Wrap};
+use dnr_runtime::texture::{
+    for_rows_of_planes, sample_into, taps, Level, Pyramid, TextureError, Wrap,
+};
 use rayon::prelude::*;
 
 use super::adam::SparseAdam;
@@ -97,7 +99,10 @@ pub fn sample_backward(
     let c = pyr.channels;
     let vt = ViewTaps::build(pyr, gbuf, None);
     let d_act = vt.gather_rows(d_out);
-    let gather = Gather { vt: &vt, d_act: &d_act };
+    let gather = Gather {
+        vt: &vt,
+        d_act: &d_act,
+    };
     let mut touched = Vec::with_capacity(pyr.levels.len());
     for (k, grad) in grads.iter_mut().enumerate() {
         let band = 1usize << vt.levels[k].shift;
@@ -172,7 +177,11 @@ pub fn sample_backward_adam(
     let c = pyr.channels;
     let same_shape = vt.channels == c
         && vt.dims.len() == pyr.levels.len()
-        && vt.dims.iter().zip(&pyr.levels).all(|(&d, l)| d == (l.width, l.height));
+        && vt
+            .dims
+            .iter()
+            .zip(&pyr.levels)
+            .all(|(&d, l)| d == (l.width, l.height));
     if !same_shape || d_out.len() != c * vt.pixels {
         return Err(TextureError::OutputSize {
             expected: c * vt.pixels,
@@ -213,7 +222,12 @@ pub fn sample_backward_adam(
             }
         }
     }
-    let max_band = vt.levels.iter().map(|l| 1usize << l.shift).max().unwrap_or(0);
+    let max_band = vt
+        .levels
+        .iter()
+        .map(|l| 1usize << l.shift)
+        .max()
+        .unwrap_or(0);
     work.into_par_iter().for_each_init(
         // Kept all zero / false between tasks: each task clears what it set.
         || (vec![0.0f32; max_band * c], vec![false; max_band]),
@@ -488,9 +502,7 @@ fn level_taps_n<const C: usize>(
                 let a: &mut [f32; C] = a.try_into().expect("C values");
                 let mut s = *a;
                 for (t, w) in tp {
-                    let x: [f32; C] = level.data[t * C..(t + 1) * C]
-                        .try_into()
-                        .expect("C values");
+                    let x: [f32; C] = level.data[t * C..(t + 1) * C].try_into().expect("C values");
                     for (o, x) in s.iter_mut().zip(x) {
                         *o += w * x;
                     }
@@ -545,9 +557,7 @@ impl Gather<'_> {
     fn band_n<const C: usize>(&self, k: usize, b: usize, g: &mut [f32], hit: &mut [bool]) {
         self.each_tap(k, b, hit, |local, w, p| {
             // Copies in and out, so the compiler sees no aliasing and uses vector registers.
-            let d: [f32; C] = self.d_act[p * C..(p + 1) * C]
-                .try_into()
-                .expect("C values");
+            let d: [f32; C] = self.d_act[p * C..(p + 1) * C].try_into().expect("C values");
             let gv: &mut [f32; C] = (&mut g[local * C..(local + 1) * C])
                 .try_into()
                 .expect("C values");

@@ -265,7 +265,10 @@ impl Trainer {
         // The features (what `features` computes, bit for bit), keeping the taps for the
         // texture's backward. SH leaves channels 0..2 alone, so after it `x` still holds the
         // raw colour features the mean-colour loss supervises.
-        const _: () = assert!(SH_FIRST >= 3, "the colour loss reads channels 0..2 after SH");
+        const _: () = assert!(
+            SH_FIRST >= 3,
+            "the colour loss reads channels 0..2 after SH"
+        );
         let mut x = Tensor::scratch(self.pyr.channels, h, w);
         let taps = sample_forward_taps(&self.pyr, &v.gbuf, &mut x.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
@@ -335,14 +338,8 @@ impl Trainer {
             .enumerate()
             .map(|(k, lvl)| 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32)
             .collect();
-        sample_backward_adam(
-            &taps,
-            &mut self.pyr,
-            &dx.data,
-            &mut self.tex_adam,
-            &decay,
-        )
-        .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        sample_backward_adam(&taps, &mut self.pyr, &dx.data, &mut self.tex_adam, &decay)
+            .map_err(|e| TrainError::Kernel(e.to_string()))?;
         dx.recycle();
         if let Net::Unet { net, adam } = &mut self.net {
             for ((wt, g), a) in net
