@@ -2,6 +2,8 @@
 //! each must produce, and how to run the `dnr` binary.
 #![forbid(unsafe_code)]
 
+pub mod fuzz_targets;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
