@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::Parser;
 use dnr_bake::bake::{bake, BakeOptions};
-use dnr_bake::train::config::{Arch, Preset, TrainConfig};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig, MLP_DEFAULT_WIDTHS};
 
 /// Train a neural texture and deferred neural renderer from posed photographs and write one
 /// self-contained glTF asset (EXT_deferred_neural_rendering, with a plain fallback material).
@@ -47,7 +47,8 @@ struct Args {
     /// Renderer architecture: none (texture only), mlp, unet.
     #[arg(long)]
     arch: Option<Arch>,
-    /// Comma-separated U-Net widths (or MLP hidden widths), e.g. 16,32,64,128,128.
+    /// Comma-separated U-Net widths (or MLP hidden widths, default 64,64 with --arch mlp),
+    /// e.g. 16,32,64,128,128.
     #[arg(long, value_delimiter = ',')]
     widths: Option<Vec<u32>>,
     /// Training crop side in pixels (0 = whole frames).
@@ -104,6 +105,9 @@ fn config(a: &Args) -> TrainConfig {
     }
     if let Some(v) = &a.widths {
         c.widths = v.clone();
+    } else if c.arch == Arch::Mlp {
+        // The presets' widths are U-Net stages, not MLP hidden layers.
+        c.widths = MLP_DEFAULT_WIDTHS.to_vec();
     }
     if let Some(v) = a.crop {
         c.crop = v;
@@ -165,5 +169,30 @@ fn main() -> ExitCode {
             eprintln!("dnr-bake: error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg_of(extra: &[&str]) -> TrainConfig {
+        let mut argv = vec!["dnr-bake", "cap", "-o", "out.glb"];
+        argv.extend_from_slice(extra);
+        config(&Args::parse_from(argv))
+    }
+
+    #[test]
+    fn mlp_gets_mlp_widths_unless_given() {
+        assert_eq!(
+            cfg_of(&["--arch", "mlp"]).widths,
+            MLP_DEFAULT_WIDTHS.to_vec()
+        );
+        assert_eq!(
+            cfg_of(&["--arch", "mlp", "--widths", "8,4"]).widths,
+            vec![8, 4]
+        );
+        let unet = cfg_of(&["--arch", "unet", "--preset", "fast"]);
+        assert_eq!(unet.widths, TrainConfig::preset(Preset::Fast).widths);
     }
 }

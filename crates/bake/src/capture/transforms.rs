@@ -542,6 +542,23 @@ pub(crate) fn resolve_camera(
     })
 }
 
+/// Parses a transforms file's text and resolves every frame's camera for an image of
+/// `image_size`, without touching the file system: the checks `Capture::load` runs on a
+/// transforms file, for fuzzing and for tools that vet a file before loading images.
+/// Returns the number of frames.
+pub fn check_transforms_text(
+    path: &Path,
+    text: &str,
+    max_frames: usize,
+    image_size: (u32, u32),
+) -> Result<usize, CaptureError> {
+    let file = parse_transforms(path, text, max_frames)?;
+    for frame in &file.frames {
+        resolve_camera(&file, frame, path, image_size)?;
+    }
+    Ok(file.frames.len())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -568,19 +585,3 @@ mod tests {
     }
 }
 
-/// Parses a transforms file's text and resolves every frame's camera for an image of
-/// `image_size`, without touching the file system: the checks `Capture::load` runs on a
-/// transforms file, for fuzzing and for tools that vet a file before loading images.
-/// Returns the number of frames.
-pub fn check_transforms_text(
-    path: &Path,
-    text: &str,
-    max_frames: usize,
-    image_size: (u32, u32),
-) -> Result<usize, CaptureError> {
-    let file = parse_transforms(path, text, max_frames)?;
-    for frame in &file.frames {
-        resolve_camera(&file, frame, path, image_size)?;
-    }
-    Ok(file.frames.len())
-}

@@ -9,6 +9,7 @@ pub mod conv;
 pub mod conv_transpose;
 pub mod dense;
 pub mod loss;
+pub mod mlp;
 pub mod norm;
 pub mod sample;
 pub mod sh;

@@ -4,6 +4,11 @@
 //!
 //! Layout: `DNRCKPT1` magic, u64 LE header length, JSON header, then the f32 LE arrays the
 //! header lists (in order), then the CRC-32 (u32 LE) of everything before it.
+//!
+//! Arrays: `texture.{k}` per level with its optimiser `texture.{k}.adam.{m,v}`, and for a
+//! network (U-Net or MLP) `net.{i}` with `net.{i}.adam.{m,v}` per tensor, in the order of the
+//! architecture's `tensor_specs`. The header's configuration names the architecture and its
+//! widths, so a checkpoint is only ever restored into the network it was written from.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

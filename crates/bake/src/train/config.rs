@@ -28,6 +28,10 @@ impl std::str::FromStr for Arch {
     }
 }
 
+/// MLP hidden widths used with `--arch mlp` when no `--widths` are given (the presets' widths
+/// are U-Net stage widths).
+pub const MLP_DEFAULT_WIDTHS: [u32; 2] = [64, 64];
+
 /// Named starting points; every field can still be overridden.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "camelCase")]

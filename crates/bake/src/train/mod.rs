@@ -12,6 +12,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use dnr_runtime::network::mlp::{Mlp, MlpParams};
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
 use dnr_runtime::nn::Tensor;
 use dnr_runtime::texture::{sample_into, Pyramid, Wrap};
@@ -23,6 +24,7 @@ use crate::eval::metrics::{view_error, Rgba, ViewError};
 use crate::export::ExportNet;
 use crate::kernels::adam::{Adam, AdamConfig, SparseAdam};
 use crate::kernels::loss::{colour_l1_loss_where, l1_loss, level_lambda};
+use crate::kernels::mlp::MlpTrain;
 use crate::kernels::sample::{sample_backward_adam, sample_forward_taps};
 use crate::kernels::unet::UNetTrain;
 use config::{Arch, TrainConfig};
@@ -77,6 +79,29 @@ pub struct Record {
 enum Net {
     None,
     Unet { net: UNetTrain, adam: Vec<Adam> },
+    Mlp { net: MlpTrain, adam: Vec<Adam> },
+}
+
+impl Net {
+    /// The network's tensors, their gradients and their optimisers (none for `None`), in the
+    /// architecture's `tensor_specs` order (also the checkpoint's `net.{i}` order).
+    #[allow(clippy::type_complexity)]
+    fn params_mut(&mut self) -> Option<(&mut [Vec<f32>], &mut [Vec<f32>], &mut [Adam])> {
+        match self {
+            Net::None => None,
+            Net::Unet { net, adam } => Some((&mut net.weights, &mut net.grads, adam)),
+            Net::Mlp { net, adam } => Some((&mut net.weights, &mut net.grads, adam)),
+        }
+    }
+
+    /// The network's tensors and optimisers, read-only.
+    fn params(&self) -> Option<(&[Vec<f32>], &[Adam])> {
+        match self {
+            Net::None => None,
+            Net::Unet { net, adam } => Some((&net.weights, adam)),
+            Net::Mlp { net, adam } => Some((&net.weights, adam)),
+        }
+    }
 }
 
 /// Training state: texture, network, optimiser moments, random stream.
@@ -94,6 +119,14 @@ pub struct Trainer {
     pub step: u64,
     loss_sum: f64,
     loss_n: u64,
+}
+
+fn mlp_params(cfg: &TrainConfig, out_ch: usize) -> MlpParams {
+    MlpParams {
+        in_ch: cfg.channels as usize,
+        hidden: cfg.widths.iter().map(|&w| w as usize).collect(),
+        out_ch,
+    }
 }
 
 fn unet_params(cfg: &TrainConfig, out_ch: usize) -> UNetParams {
@@ -129,7 +162,7 @@ impl Trainer {
             return Err(TrainError::NothingVisible);
         }
         let has_alpha = train.iter().any(|v| v.has_alpha);
-        let out_ch = if cfg.alpha && has_alpha && cfg.arch == Arch::Unet {
+        let out_ch = if cfg.alpha && has_alpha && cfg.arch != Arch::None {
             4
         } else {
             3
@@ -157,26 +190,24 @@ impl Trainer {
             .iter()
             .map(|l| SparseAdam::new(l.width * l.height, c, tex_cfg))
             .collect();
+        let ncfg = AdamConfig {
+            lr: cfg.lr_net,
+            ..AdamConfig::default()
+        };
+        let adams = |ws: &[Vec<f32>]| ws.iter().map(|w| Adam::new(w.len(), ncfg)).collect();
         let net = match cfg.arch {
             Arch::None => Net::None,
             Arch::Unet => {
                 let net = UNetTrain::init(unet_params(&cfg, out_ch), cfg.seed ^ 0x5eed)
                     .map_err(|e| TrainError::Config(e.to_string()))?;
-                let ncfg = AdamConfig {
-                    lr: cfg.lr_net,
-                    ..AdamConfig::default()
-                };
-                let adam = net
-                    .weights
-                    .iter()
-                    .map(|w| Adam::new(w.len(), ncfg))
-                    .collect();
+                let adam = adams(&net.weights);
                 Net::Unet { net, adam }
             }
             Arch::Mlp => {
-                return Err(TrainError::Config(
-                    "training the mlp architecture is not implemented yet".into(),
-                ))
+                let net = MlpTrain::init(mlp_params(&cfg, out_ch), cfg.seed ^ 0x5eed)
+                    .map_err(|e| TrainError::Config(e.to_string()))?;
+                let adam = adams(&net.weights);
+                Net::Mlp { net, adam }
             }
         };
         Ok(Trainer {
@@ -308,9 +339,22 @@ impl Trainer {
                     .forward(&x)
                     .map_err(|e| TrainError::Kernel(e.to_string()))?;
                 let mut dy = Tensor::zeros(self.out_ch, h, w);
-                let loss = unet_photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
                 y.recycle();
                 let dx = net.backward(&acts, &dy);
+                dy.recycle();
+                (loss, dx)
+            }
+            Net::Mlp { net, .. } => {
+                // Covered pixels only; the others are colour 0, alpha 0 (y = -1), constants.
+                let covered: Vec<bool> = v.gbuf.coverage.iter().map(|&c| c != 0.0).collect();
+                let (y, acts) = net
+                    .forward_frame(&x, &covered)
+                    .map_err(|e| TrainError::Kernel(e.to_string()))?;
+                let mut dy = Tensor::zeros(self.out_ch, h, w);
+                let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                y.recycle();
+                let dx = net.backward_frame(&acts, &dy);
                 dy.recycle();
                 (loss, dx)
             }
@@ -341,11 +385,10 @@ impl Trainer {
         sample_backward_adam(&taps, &mut self.pyr, &dx.data, &mut self.tex_adam, &decay)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         dx.recycle();
-        if let Net::Unet { net, adam } = &mut self.net {
-            for ((wt, g), a) in net
-                .weights
+        if let Some((weights, grads, adam)) = self.net.params_mut() {
+            for ((wt, g), a) in weights
                 .iter_mut()
-                .zip(net.grads.iter_mut())
+                .zip(grads.iter_mut())
                 .zip(adam.iter_mut())
             {
                 a.step_zero_grad(wt, g);
@@ -377,6 +420,11 @@ impl Trainer {
                 params: net.params.clone(),
                 tensors: net.to_map(),
             },
+            Net::Mlp { net, .. } => ExportNet::Mlp {
+                hidden: net.params.hidden.clone(),
+                out_ch: net.params.out_ch,
+                tensors: net.to_map(),
+            },
         }
     }
 
@@ -387,24 +435,46 @@ impl Trainer {
 
     /// Renders whole views with the runtime's forward (f32 weights) and measures them.
     pub fn evaluate(&self, views: &[View]) -> Result<Vec<ViewError>, TrainError> {
-        let unet = match &self.net {
-            Net::Unet { net, .. } => Some(
-                UNet::from_map(net.params.clone(), &net.to_map())
-                    .map_err(|e| TrainError::Kernel(e.to_string()))?,
+        let kerr = |e: &dyn std::fmt::Display| TrainError::Kernel(e.to_string());
+        let runtime = match &self.net {
+            Net::Unet { net, .. } => EvalNet::Unet(
+                UNet::from_map(net.params.clone(), &net.to_map()).map_err(|e| kerr(&e))?,
             ),
-            Net::None => None,
+            Net::Mlp { net, .. } => EvalNet::Mlp(
+                Mlp::from_map(net.params.clone(), &net.to_map()).map_err(|e| kerr(&e))?,
+            ),
+            Net::None => EvalNet::None,
         };
         let mut out = Vec::with_capacity(views.len());
         for v in views {
             let (h, w) = (v.height(), v.width());
             let n = h * w;
             let x = self.features(v)?;
-            let (colour, alpha): (Vec<f32>, Vec<f32>) = match &unet {
-                None => (
+            let (colour, alpha): (Vec<f32>, Vec<f32>) = match &runtime {
+                EvalNet::None => (
                     x.data[..3 * n].iter().map(|t| t.clamp(0.0, 1.0)).collect(),
                     v.gbuf.coverage.clone(),
                 ),
-                Some(net) => {
+                EvalNet::Mlp(net) => {
+                    let covered: Vec<bool> = v.gbuf.coverage.iter().map(|&c| c != 0.0).collect();
+                    let y = net.forward(&x, &covered).map_err(|e| kerr(&e))?;
+                    // Unevaluated pixels are colour 0, alpha 0, as the runtime draws them.
+                    let unit = |k: usize, i: usize| {
+                        if covered[i] {
+                            0.5 * (y.data[k * n + i] + 1.0)
+                        } else {
+                            0.0
+                        }
+                    };
+                    let col = (0..3 * n).map(|j| unit(j / n, j % n)).collect();
+                    let a = if self.out_ch == 4 {
+                        (0..n).map(|i| unit(3, i)).collect()
+                    } else {
+                        v.gbuf.coverage.clone()
+                    };
+                    (col, a)
+                }
+                EvalNet::Unet(net) => {
                     let y = net
                         .forward(&x)
                         .map_err(|e| TrainError::Kernel(e.to_string()))?;
@@ -492,8 +562,8 @@ impl Trainer {
             c.push(&format!("texture.{k}"), &l.data);
             c.push_adam(&format!("texture.{k}.adam"), &self.tex_adam[k].state());
         }
-        if let Net::Unet { net, adam } = &self.net {
-            for (i, (w, a)) in net.weights.iter().zip(adam).enumerate() {
+        if let Some((weights, adam)) = self.net.params() {
+            for (i, (w, a)) in weights.iter().zip(adam).enumerate() {
                 c.push(&format!("net.{i}"), w);
                 c.push_adam(&format!("net.{i}.adam"), &a.state());
             }
@@ -536,8 +606,8 @@ impl Trainer {
                 return Err(bad(format!("{name}.adam size")).into());
             }
         }
-        if let Net::Unet { net, adam } = &mut self.net {
-            for (i, (w, a)) in net.weights.iter_mut().zip(adam.iter_mut()).enumerate() {
+        if let Some((weights, _, adam)) = self.net.params_mut() {
+            for (i, (w, a)) in weights.iter_mut().zip(adam.iter_mut()).enumerate() {
                 let name = format!("net.{i}");
                 let v = c
                     .array(&name)
@@ -567,6 +637,13 @@ impl Trainer {
     }
 }
 
+/// The runtime's network for [`Trainer::evaluate`].
+enum EvalNet {
+    None,
+    Mlp(Mlp),
+    Unet(UNet),
+}
+
 fn uvs_in_unit_square(views: &[View]) -> bool {
     views.iter().all(|v| {
         v.gbuf.uv.iter().zip(&v.gbuf.coverage).all(|(uv, &c)| {
@@ -575,13 +652,15 @@ fn uvs_in_unit_square(views: &[View]) -> bool {
     })
 }
 
-/// The photometric loss of a U-Net output `y` (after tanh, `out_ch x n`, n = the view's
-/// pixels) and its gradient, written to `dy` (same shape), in one pass:
+/// The photometric loss of a renderer output `y` (U-Net or MLP, after tanh, `out_ch x n`,
+/// n = the view's pixels) and its gradient, written to `dy` (same shape), in one pass:
 /// `colour = (t + 1) / 2`, `alpha = (t3 + 1) / 2` with 4 outputs (else the coverage),
 /// `comp = colour * alpha + (1 - alpha)` (on white, like the target), `L = mean |comp - target|`
 /// over 3 x n, plus with 4 outputs the mean L1 of alpha against the mask (gradient only).
 /// The arithmetic is [`l1_loss`]'s, term by term, so the values are the same bit for bit.
-fn unet_photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64 {
+///
+/// Panics if `y`, `dy` or the view's target do not have those shapes (trainer-internal data).
+pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64 {
     let n = v.gbuf.len();
     assert!(
         y.len() == out_ch * n && dy.len() == out_ch * n && v.target.len() >= 3 * n,
