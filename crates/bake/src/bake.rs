@@ -51,6 +51,8 @@ pub struct Summary {
     pub train_seconds: f64,
     /// Size of the asset.
     pub asset_bytes: u64,
+    /// Divergences recovered from during training (see `train::run`).
+    pub recoveries: usize,
 }
 
 #[derive(Serialize)]
@@ -63,6 +65,8 @@ struct Report<'a> {
     test_views: usize,
     warnings: &'a [String],
     records: &'a [Record],
+    /// Divergences the training loop recovered from (rollback, halved learning rates).
+    recoveries: &'a [crate::train::Recovery],
     summary: &'a Summary,
 }
 
@@ -196,6 +200,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         b.finish_and_clear();
     }
     let records = state.records;
+    let recoveries = state.recoveries;
 
     let builder = export::build(
         &capture.mesh,
@@ -238,16 +243,19 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         seconds: t_start.elapsed().as_secs_f64(),
         train_seconds,
         asset_bytes,
+        recoveries: recoveries.len(),
     };
     if let Some(path) = &opts.report {
         let rep = Report {
-            config: cfg,
+            // The configuration trained with (recoveries lower the learning rates).
+            config: &trainer.cfg,
             capture: opts.capture.display().to_string(),
             mesh: capture.mesh_path.display().to_string(),
             train_views: train_views.len(),
             test_views: test_views.len(),
             warnings: &capture.warnings,
             records: &records,
+            recoveries: &recoveries,
             summary: &summary,
         };
         let text = serde_json::to_string_pretty(&rep).expect("report serialises");

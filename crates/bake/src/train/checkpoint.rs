@@ -68,6 +68,9 @@ pub struct Header {
     pub arrays: Vec<(String, u64)>,
     /// Step counts of the optimisers, by array name prefix.
     pub adam_steps: Vec<(String, Vec<u64>)>,
+    /// Recoveries from divergence so far, as JSON (absent in older checkpoints).
+    #[serde(default)]
+    pub recoveries: serde_json::Value,
 }
 
 /// A checkpoint in memory.
@@ -232,6 +235,7 @@ mod tests {
                 loss_n: 2,
                 arrays: vec![],
                 adam_steps: vec![],
+                recoveries: serde_json::json!([]),
             },
             arrays: vec![],
         };

@@ -50,6 +50,17 @@ pub enum TrainError {
     /// Writing or reading a checkpoint failed.
     #[error(transparent)]
     Checkpoint(#[from] checkpoint::CheckpointError),
+    /// Training diverged again and again although each recovery rolled back and halved the
+    /// learning rates.
+    #[error("training diverged {recoveries} times (last at step {step}: {reason}); try a lower --lr")]
+    Diverged {
+        /// Recoveries tried.
+        recoveries: usize,
+        /// Step of the last divergence.
+        step: u64,
+        /// What was seen.
+        reason: String,
+    },
     /// Stopped by the user (Ctrl-C) after writing a checkpoint.
     #[error("interrupted at step {step}; checkpoint written to {path}: run again with --resume")]
     Interrupted {
@@ -73,6 +84,24 @@ pub struct Record {
     pub test_psnr: f64,
     /// Mean held-out MSE on [0,255] over object pixels.
     pub test_mse: f64,
+}
+
+/// A divergence the training loop recovered from: it rolled back to the last good state and
+/// halved both learning rates (see [`run`]).
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct Recovery {
+    /// Step at which the divergence was seen.
+    pub step: u64,
+    /// Step of the state rolled back to.
+    pub rolled_back_to: u64,
+    /// Training seconds when it happened.
+    pub seconds: f64,
+    /// What was seen (non-finite loss, held-out PSNR collapse).
+    pub reason: String,
+    /// Network learning rate from then on.
+    pub lr_net: f32,
+    /// Texture learning rate from then on.
+    pub lr_tex: f32,
 }
 
 /// The renderer being trained.
@@ -400,6 +429,16 @@ impl Trainer {
         Ok(loss)
     }
 
+    /// Sets the texture and network learning rates (config and every optimiser).
+    pub fn set_learning_rates(&mut self, lr_net: f32, lr_tex: f32) {
+        self.cfg.lr_net = lr_net;
+        self.cfg.lr_tex = lr_tex;
+        self.tex_adam.iter_mut().for_each(|a| a.cfg.lr = lr_tex);
+        if let Some((_, _, adam)) = self.net.params_mut() {
+            adam.iter_mut().for_each(|a| a.cfg.lr = lr_net);
+        }
+    }
+
     /// Mean training loss since the last call.
     pub fn take_loss(&mut self) -> f64 {
         let l = if self.loss_n > 0 {
@@ -555,6 +594,7 @@ impl Trainer {
                 loss_n: self.loss_n,
                 arrays: Vec::new(),
                 adam_steps: Vec::new(),
+                recoveries: serde_json::to_value(&state.recoveries).unwrap_or_default(),
             },
             arrays: Vec::new(),
         };
@@ -583,14 +623,25 @@ impl Trainer {
         };
         let mut want = serde_json::to_value(&self.cfg).unwrap_or_default();
         let mut have = c.header.config.clone();
-        // The budget may be raised on resume; everything else must match.
+        // The budget may be raised on resume, and recoveries lower the learning rates (the
+        // checkpoint's win); everything else must match.
+        let lr = |v: &serde_json::Value, key: &str| v.get(key).and_then(|x| x.as_f64());
+        let (lr_net, lr_tex) = (lr(&have, "lrNet"), lr(&have, "lrTex"));
         for v in [&mut want, &mut have] {
             if let Some(o) = v.as_object_mut() {
-                o.remove("timeBudget");
+                for key in ["timeBudget", "lrNet", "lrTex"] {
+                    o.remove(key);
+                }
             }
         }
         if want != have {
             return Err(bad(format!("written for another configuration: {have}")).into());
+        }
+        match (lr_net, lr_tex) {
+            (Some(n), Some(t)) if n.is_finite() && t.is_finite() && n > 0.0 && t > 0.0 => {
+                self.set_learning_rates(n as f32, t as f32);
+            }
+            _ => return Err(bad("learning rates".into()).into()),
         }
         for (k, l) in self.pyr.levels.iter_mut().enumerate() {
             let name = format!("texture.{k}");
@@ -629,10 +680,16 @@ impl Trainer {
         self.loss_n = c.header.loss_n;
         let records =
             serde_json::from_value(c.header.records.clone()).map_err(|e| bad(e.to_string()))?;
+        let recoveries = if c.header.recoveries.is_null() {
+            Vec::new()
+        } else {
+            serde_json::from_value(c.header.recoveries.clone()).map_err(|e| bad(e.to_string()))?
+        };
         Ok(RunState {
             train_secs: c.header.train_secs,
             next_eval: c.header.next_eval,
             records,
+            recoveries,
         })
     }
 }
@@ -706,12 +763,14 @@ pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64
 /// Progress of a run that a checkpoint carries besides the trainer.
 #[derive(Clone, Debug, Default)]
 pub struct RunState {
-    /// Training seconds (evaluation excluded).
+    /// Training seconds (evaluation excluded, initialisation included).
     pub train_secs: f64,
     /// Training second of the next evaluation.
     pub next_eval: f64,
     /// Records so far.
     pub records: Vec<Record>,
+    /// Divergences recovered from so far.
+    pub recoveries: Vec<Recovery>,
 }
 
 /// Where and how often to checkpoint, and the flag that asks the loop to stop.
@@ -724,8 +783,23 @@ pub struct Checkpointing<'a> {
     pub stop: &'a AtomicBool,
 }
 
+/// A held-out PSNR this far below the best so far counts as divergence.
+pub const PSNR_COLLAPSE_DB: f64 = 3.0;
+/// Recoveries tried before training gives up with [`TrainError::Diverged`].
+pub const MAX_RECOVERIES: usize = 6;
+/// At the end, the best snapshot replaces the final state when it is this much better
+/// (a margin, so that ordinary noise between evaluations never swaps states).
+pub const BEST_STATE_MARGIN_DB: f64 = 0.5;
+
 /// Trains until the step limit or the time budget, evaluating every `eval_every` seconds
 /// and checkpointing as asked. `on_step` and `on_record` drive the progress display.
+///
+/// Divergence recovery: a non-finite training loss, or a held-out PSNR that is non-finite or
+/// [`PSNR_COLLAPSE_DB`] below the best so far, rolls the trainer back to the last good state
+/// (the start, or the last evaluation that was the best so far), halves both learning rates
+/// and records a [`Recovery`] in `state` (the report lists them). After [`MAX_RECOVERIES`]
+/// the run fails. When training ends, the best evaluated state is restored if the final
+/// one is more than [`BEST_STATE_MARGIN_DB`] worse, so a budget always exports the best state.
 pub fn run(
     trainer: &mut Trainer,
     state: &mut RunState,
@@ -740,16 +814,76 @@ pub fn run(
     }
     let budget = trainer.cfg.time_budget;
     let mut last_ckpt = Instant::now();
+    // The last good state and its held-out PSNR (the start counts as good).
+    let mut good = (trainer.checkpoint(state), f64::NEG_INFINITY);
+    let mut best_psnr = state
+        .records
+        .iter()
+        .map(|r| r.test_psnr)
+        .filter(|p| p.is_finite())
+        .fold(f64::NEG_INFINITY, f64::max);
+    let recover = |trainer: &mut Trainer,
+                   state: &mut RunState,
+                   good: &checkpoint::Checkpoint,
+                   reason: String|
+     -> Result<(), TrainError> {
+        let step = trainer.step;
+        let keep = (state.train_secs, state.next_eval, std::mem::take(&mut state.records));
+        // Roll back first, so that even a run that gives up leaves a good state behind.
+        let lr_before = (trainer.cfg.lr_net, trainer.cfg.lr_tex);
+        trainer.restore(good, Path::new("(in-memory snapshot)"))?;
+        if state.recoveries.len() >= MAX_RECOVERIES {
+            trainer.set_learning_rates(lr_before.0, lr_before.1);
+            (state.train_secs, state.next_eval, state.records) = keep;
+            return Err(TrainError::Diverged {
+                recoveries: state.recoveries.len(),
+                step,
+                reason,
+            });
+        }
+        let (lr_net, lr_tex) = (lr_before.0 * 0.5, lr_before.1 * 0.5);
+        trainer.set_learning_rates(lr_net, lr_tex);
+        (state.train_secs, state.next_eval, state.records) = keep;
+        eprintln!(
+            "dnr-bake: {reason} at step {step}: rolled back to step {}, learning rates halved to {lr_net:e} (network) and {lr_tex:e} (texture)",
+            trainer.step
+        );
+        state.recoveries.push(Recovery {
+            step,
+            rolled_back_to: trainer.step,
+            seconds: state.train_secs,
+            reason,
+            lr_net,
+            lr_tex,
+        });
+        Ok(())
+    };
     while trainer.step < trainer.cfg.steps && (budget <= 0.0 || state.train_secs < budget) {
         let t0 = Instant::now();
-        trainer.step(train)?;
+        let loss = trainer.step(train)?;
         state.train_secs += t0.elapsed().as_secs_f64();
+        if !loss.is_finite() {
+            recover(trainer, state, &good.0, format!("training loss {loss}"))?;
+            continue;
+        }
         on_step(trainer, state.train_secs);
         if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
             state.next_eval += trainer.cfg.eval_every;
             let rec = record(trainer, test, state.train_secs)?;
             on_record(&rec);
+            let psnr = rec.test_psnr;
             state.records.push(rec);
+            if !psnr.is_finite() || psnr < best_psnr - PSNR_COLLAPSE_DB {
+                recover(
+                    trainer,
+                    state,
+                    &good.0,
+                    format!("held-out PSNR fell to {psnr:.2} dB (best {best_psnr:.2} dB)"),
+                )?;
+            } else if psnr >= best_psnr {
+                best_psnr = psnr;
+                good = (trainer.checkpoint(state), psnr);
+            }
         }
         if let Some(c) = ckpt {
             let stop = c.stop.load(Ordering::SeqCst);
@@ -774,6 +908,16 @@ pub fn run(
         let rec = record(trainer, test, state.train_secs)?;
         on_record(&rec);
         state.records.push(rec);
+    }
+    let last = state.records.last().map_or(f64::NAN, |r| r.test_psnr);
+    if good.1.is_finite() && !(last >= good.1 - BEST_STATE_MARGIN_DB) {
+        let keep = (state.train_secs, state.next_eval, std::mem::take(&mut state.records));
+        trainer.restore(&good.0, Path::new("(in-memory snapshot)"))?;
+        (state.train_secs, state.next_eval, state.records) = keep;
+        eprintln!(
+            "dnr-bake: the final state ({last:.2} dB) is worse than the best evaluated one ({:.2} dB at step {}): exporting the best",
+            good.1, trainer.step
+        );
     }
     Ok(())
 }
