@@ -103,8 +103,8 @@ fn constant_colour_images_train_finite_and_close() {
         for i in 0..n {
             let a = v.gbuf.coverage[i];
             v.alpha[i] = a;
-            for c in 0..3 {
-                v.target[c * n + i] = colour[c] * a + (1.0 - a);
+            for (c, &col) in colour.iter().enumerate() {
+                v.target[c * n + i] = col * a + (1.0 - a);
             }
         }
     }

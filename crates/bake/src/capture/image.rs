@@ -7,6 +7,13 @@
 //! un-premultiplied, clamped to [0, 1] and sRGB-encoded, so an EXR capture and the PNG a
 //! tone-mapper-free export of it would give agree. Alpha is never encoded: it is coverage.
 //! Images without alpha get a mask of all ones.
+//!
+//! Non-finite EXR samples (renderers write NaN and infinite fireflies) are replaced before
+//! anything else, per sample: `NaN` and `-inf` become 0, `+inf` becomes 1 (the top of the
+//! range colours are clamped to anyway). So a NaN alpha makes the pixel background and a NaN
+//! colour makes it black. [`DecodedImage::non_finite`] counts them and names the first, and
+//! [`super::Capture::load`] turns that into a warning naming the file and the pixel: no NaN
+//! ever reaches training, and none is dropped silently.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -34,6 +41,32 @@ pub struct DecodedImage {
     pub alpha: Vec<f32>,
     /// Whether the file had an alpha channel.
     pub has_alpha: bool,
+    /// Non-finite samples the file held (EXR only), replaced by the rule in the module
+    /// documentation; None when every sample was finite.
+    pub non_finite: Option<NonFinite>,
+}
+
+/// Non-finite samples found in an image file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NonFinite {
+    /// How many samples (over R, G, B and A) were NaN or infinite.
+    pub count: u64,
+    /// Pixel `(x, y)` (y = 0 at the top) of the first one, in row-major order.
+    pub first_pixel: (u32, u32),
+    /// Its channel: `R`, `G`, `B` or `A`.
+    pub first_channel: char,
+}
+
+impl std::fmt::Display for NonFinite {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (x, y) = self.first_pixel;
+        write!(
+            f,
+            "{} non-finite sample(s) (NaN or infinity), the first at pixel ({x}, {y}) channel {}; \
+             replaced (NaN and -inf by 0, +inf by 1)",
+            self.count, self.first_channel
+        )
+    }
 }
 
 /// The container a file holds, found from its first bytes (not its name).
@@ -170,6 +203,7 @@ fn decode_raster(path: &Path, max_side: u32) -> Result<DecodedImage, CaptureErro
         rgb,
         alpha,
         has_alpha,
+        non_finite: None,
     })
 }
 
@@ -202,7 +236,20 @@ fn decode_exr(path: &Path) -> Result<DecodedImage, CaptureError> {
     let n = size.0 * size.1;
     let mut rgb = Vec::with_capacity(n * 3);
     let mut alpha = Vec::with_capacity(n);
-    for p in px.rgba.chunks_exact(4) {
+    let mut non_finite: Option<NonFinite> = None;
+    for (i, p) in px.rgba.chunks_exact(4).enumerate() {
+        let channels = if px.has_alpha { 4 } else { 3 };
+        for (c, v) in p[..channels].iter().enumerate() {
+            if !v.is_finite() {
+                let nf = non_finite.get_or_insert(NonFinite {
+                    count: 0,
+                    // i < width * height, both checked to fit in u32 above.
+                    first_pixel: ((i % size.0) as u32, (i / size.0) as u32),
+                    first_channel: ['R', 'G', 'B', 'A'][c],
+                });
+                nf.count += 1;
+            }
+        }
         let a = if px.has_alpha {
             sanitize(p[3]).clamp(0.0, 1.0)
         } else {
@@ -225,9 +272,11 @@ fn decode_exr(path: &Path) -> Result<DecodedImage, CaptureError> {
         rgb,
         alpha,
         has_alpha: px.has_alpha,
+        non_finite,
     })
 }
 
+/// The replacement rule for non-finite EXR samples (module documentation).
 fn sanitize(x: f32) -> f32 {
     if x.is_finite() {
         x
@@ -312,6 +361,7 @@ pub(crate) fn undistort(img: &DecodedImage, camera: &Camera, d: &Distortion) -> 
         rgb,
         alpha,
         has_alpha: img.has_alpha,
+        non_finite: img.non_finite,
     }
 }
 

@@ -217,7 +217,11 @@ pub fn parse_obj(path: &Path, text: &str, limits: &MeshLimits) -> Result<Primiti
             "v" => {
                 let v =
                     parse_floats::<3>(&mut toks).ok_or_else(|| err("expected `v x y z`".into()))?;
-                positions.push(Vec3::from_array(v));
+                let v = Vec3::from_array(v);
+                if !v.is_finite() {
+                    return Err(err(format!("vertex has a non-finite position {v}")));
+                }
+                positions.push(v);
             }
             "vt" => {
                 let u = toks.next().and_then(|t| t.parse::<f32>().ok());
@@ -226,6 +230,11 @@ pub fn parse_obj(path: &Path, text: &str, limits: &MeshLimits) -> Result<Primiti
                     Some(t) => t.parse::<f32>().ok(),
                 };
                 match (u, v) {
+                    (Some(u), Some(v)) if !(u.is_finite() && v.is_finite()) => {
+                        return Err(err(format!(
+                            "vertex has a non-finite texture coordinate ({u}, {v})"
+                        )));
+                    }
                     (Some(u), Some(v)) => texcoords.push(Vec2::new(u, 1.0 - v)),
                     _ => return Err(err("expected `vt u [v]`".into())),
                 }

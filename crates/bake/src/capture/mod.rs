@@ -305,7 +305,7 @@ impl Capture {
         // Pass 2: decode in parallel; the first error in file order is reported.
         let max_side = limits.max_image_side;
         let undistort_on = opts.undistort;
-        let decoded: Vec<Result<Frame, CaptureError>> = planned
+        let decoded: Vec<Result<(Frame, Option<String>), CaptureError>> = planned
             .par_iter()
             .map(|p| {
                 let mut img = decode_image(&p.image_path, max_side)?;
@@ -319,7 +319,10 @@ impl Capture {
                 if do_undistort {
                     img = undistort(&img, &p.camera, &p.distortion);
                 }
-                Ok(Frame {
+                let warning = img
+                    .non_finite
+                    .map(|nf| format!("{}: {nf}", p.image_path.display()));
+                let frame = Frame {
                     name: p.name.clone(),
                     image_path: p.image_path.clone(),
                     camera: p.camera,
@@ -328,13 +331,15 @@ impl Capture {
                     rgb: img.rgb,
                     alpha: img.alpha,
                     has_alpha: img.has_alpha,
-                })
+                };
+                Ok((frame, warning))
             })
             .collect();
         let mut train = Vec::new();
         let mut test = Vec::new();
         for (p, frame) in planned.iter().zip(decoded) {
-            let frame = frame?;
+            let (frame, warning) = frame?;
+            warnings.extend(warning);
             if p.test {
                 test.push(frame);
             } else {

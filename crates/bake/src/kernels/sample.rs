@@ -111,7 +111,11 @@ pub fn sample_backward(
             .enumerate()
             .map(|(b, g)| {
                 let mut hit = vec![false; g.len() / c];
-                gather.band(k, b, g, &mut hit);
+                let mut acc = vec![0.0f64; g.len()];
+                gather.band(k, b, &mut acc, &mut hit);
+                for (gv, a) in g.iter_mut().zip(&acc) {
+                    *gv += *a as f32;
+                }
                 let t0 = b * band;
                 hit.iter()
                     .enumerate()
@@ -230,15 +234,24 @@ pub fn sample_backward_adam(
         .unwrap_or(0);
     work.into_par_iter().for_each_init(
         // Kept all zero / false between tasks: each task clears what it set.
-        || (vec![0.0f32; max_band * c], vec![false; max_band]),
-        |(g, hit), (k, b, mut blk)| {
+        || {
+            (
+                vec![0.0f64; max_band * c],
+                vec![false; max_band],
+                vec![0.0f32; c],
+            )
+        },
+        |(g, hit, g32), (k, b, mut blk)| {
             let rows = blk.len();
             let (g, hit) = (&mut g[..rows * c], &mut hit[..rows]);
             gather.band(k, b, g, hit);
             for (i, h) in hit.iter_mut().enumerate() {
                 if *h {
                     let gi = &mut g[i * c..(i + 1) * c];
-                    blk.update(i, gi, decay[k]);
+                    for (o, a) in g32.iter_mut().zip(gi.iter()) {
+                        *o = *a as f32;
+                    }
+                    blk.update(i, g32, decay[k]);
                     gi.fill(0.0);
                     *h = false;
                 }
@@ -537,7 +550,9 @@ struct Gather<'a> {
 impl Gather<'_> {
     /// Adds every tap's `w * dL/dF` that falls in band `b` of level `k` into `g` (the band's
     /// texels, `[texel][C]`) in pixel order, then tap order, and marks the texels hit.
-    fn band(&self, k: usize, b: usize, g: &mut [f32], hit: &mut [bool]) {
+    /// Accumulates in `f64`: a texel of a large level seen by many pixels sums millions of
+    /// terms, where an `f32` running sum loses several percent (tested in `tests/stress.rs`).
+    fn band(&self, k: usize, b: usize, g: &mut [f64], hit: &mut [bool]) {
         match self.vt.channels {
             16 => self.band_n::<16>(k, b, g, hit),
             12 => self.band_n::<12>(k, b, g, hit),
@@ -546,7 +561,7 @@ impl Gather<'_> {
             c => self.each_tap(k, b, hit, |local, w, p| {
                 let d = &self.d_act[p * c..(p + 1) * c];
                 for (gv, &dv) in g[local * c..(local + 1) * c].iter_mut().zip(d) {
-                    *gv += w * dv;
+                    *gv += f64::from(w * dv);
                 }
             }),
         }
@@ -554,16 +569,16 @@ impl Gather<'_> {
 
     /// [`Gather::band`] for a channel count known at compile time.
     #[inline]
-    fn band_n<const C: usize>(&self, k: usize, b: usize, g: &mut [f32], hit: &mut [bool]) {
+    fn band_n<const C: usize>(&self, k: usize, b: usize, g: &mut [f64], hit: &mut [bool]) {
         self.each_tap(k, b, hit, |local, w, p| {
             // Copies in and out, so the compiler sees no aliasing and uses vector registers.
             let d: [f32; C] = self.d_act[p * C..(p + 1) * C].try_into().expect("C values");
-            let gv: &mut [f32; C] = (&mut g[local * C..(local + 1) * C])
+            let gv: &mut [f64; C] = (&mut g[local * C..(local + 1) * C])
                 .try_into()
                 .expect("C values");
             let mut acc = *gv;
             for (a, dv) in acc.iter_mut().zip(d) {
-                *a += w * dv;
+                *a += f64::from(w * dv);
             }
             *gv = acc;
         });
@@ -592,8 +607,8 @@ impl Gather<'_> {
     }
 }
 
-/// The naive serial scatter: same contract as [`sample_backward`] (same touched lists;
-/// gradients equal up to f32 summation order). Test oracle.
+/// The naive serial scatter: same contract as [`sample_backward`] (same touched lists, same
+/// `f64` sums in the same order, so bit-identical gradients). Test oracle.
 pub fn sample_backward_serial(
     pyr: &Pyramid,
     gbuf: &GBuffer,
@@ -608,12 +623,14 @@ pub fn sample_backward_serial(
         .iter()
         .map(|l| vec![false; l.width * l.height])
         .collect();
+    // Same f64 accumulation, same order (pixel, then tap) as the parallel scatter.
+    let mut acc: Vec<Vec<f64>> = grads.iter().map(|g| vec![0.0; g.len()]).collect();
     for p in 0..n {
         if gbuf.coverage[p] == 0.0 {
             continue;
         }
         let [u, v] = gbuf.uv[p];
-        for ((level, grad), mark) in pyr.levels.iter().zip(grads.iter_mut()).zip(&mut marks) {
+        for ((level, acc), mark) in pyr.levels.iter().zip(acc.iter_mut()).zip(&mut marks) {
             let Some(tp) = taps(level.width, level.height, pyr.wrap_s, pyr.wrap_t, u, v) else {
                 break;
             };
@@ -623,9 +640,14 @@ pub fn sample_backward_serial(
                 }
                 mark[t] = true;
                 for ch in 0..c {
-                    grad[t * c + ch] += w * d_out[ch * n + p];
+                    acc[t * c + ch] += f64::from(w * d_out[ch * n + p]);
                 }
             }
+        }
+    }
+    for (grad, acc) in grads.iter_mut().zip(&acc) {
+        for (g, a) in grad.iter_mut().zip(acc) {
+            *g += *a as f32;
         }
     }
     Ok(marks

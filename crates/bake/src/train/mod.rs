@@ -910,7 +910,9 @@ pub fn run(
         state.records.push(rec);
     }
     let last = state.records.last().map_or(f64::NAN, |r| r.test_psnr);
-    if good.1.is_finite() && !(last >= good.1 - BEST_STATE_MARGIN_DB) {
+    // A NaN final PSNR counts as worse.
+    let worse = last.is_nan() || last < good.1 - BEST_STATE_MARGIN_DB;
+    if good.1.is_finite() && worse {
         let keep = (state.train_secs, state.next_eval, std::mem::take(&mut state.records));
         trainer.restore(&good.0, Path::new("(in-memory snapshot)"))?;
         (state.train_secs, state.next_eval, state.records) = keep;
