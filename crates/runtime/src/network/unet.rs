@@ -11,6 +11,7 @@ use crate::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
 use crate::nn::conv_transpose::TconvLayout;
 use crate::nn::gemm::PackedA;
 use crate::nn::norm::{instance_norm, normalize};
+use crate::nn::region::{Classes, ColPlan};
 use crate::nn::tensor::pool;
 use crate::nn::upsample::upsample_nearest2_concat;
 use crate::nn::{NnError, Tensor};
@@ -173,6 +174,32 @@ impl UNetParams {
     }
 }
 
+/// Work of one convolution of a masked forward pass ([`UNet::plan`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LayerWork {
+    /// `encoder.{i}` or `decoder.{i}`.
+    pub name: String,
+    /// Output positions needed (the last layer's crop excluded).
+    pub positions: usize,
+    /// Active positions: those whose receptive field holds a covered pixel.
+    pub active: usize,
+    /// GEMM columns computed (over all phases of a transposed convolution).
+    pub computed: usize,
+    /// GEMM columns of the whole-frame evaluation (junk columns included).
+    pub total: usize,
+}
+
+/// Column plans of every GEMM of a masked forward pass.
+#[derive(Clone, Debug)]
+struct SkipPlan {
+    /// Per encoder i.
+    enc: Vec<ColPlan>,
+    /// Per decoder i: one plan (upsampleConv) or four, one per phase (transposedConv).
+    dec: Vec<Vec<ColPlan>>,
+    /// Work per convolution in evaluation order.
+    work: Vec<LayerWork>,
+}
+
 /// Weights of one convolution with its packed GEMM form.
 #[derive(Clone, Debug)]
 struct Layer {
@@ -247,13 +274,171 @@ impl UNet {
     /// layer applies the LeakyReLU while it gathers its input, and the decoder reads its skip
     /// in place, so no activated copy or concatenation is ever built.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor, NnError> {
-        let p = &self.params;
-        if x.c != p.in_ch {
+        self.run(x, None)
+    }
+
+    /// [`Self::forward`] that skips the convolution work of positions whose value cannot
+    /// depend on a covered pixel; the output is bit-identical to [`Self::forward`].
+    ///
+    /// `covered` holds `H * W` flags (row-major) of the unpadded frame. An uncovered pixel
+    /// whose features are not all (positive) zero is treated as covered, so the result is
+    /// exact whatever `x` holds. Positions that no covered pixel reaches hold per-phase
+    /// constants; one representative per phase is computed and copied to the others, and
+    /// normalisation runs over the whole materialised map as in [`Self::forward`].
+    pub fn forward_masked(&self, x: &Tensor, covered: &[bool]) -> Result<Tensor, NnError> {
+        self.check_input(x)?;
+        if covered.len() != x.h * x.w {
             return Err(NnError::Shape(format!(
-                "U-Net expects {} input channels, got {}",
-                p.in_ch, x.c
+                "coverage has {} flags for a {}x{} frame",
+                covered.len(),
+                x.h,
+                x.w
             )));
         }
+        if x.h == 0 || x.w == 0 {
+            return Ok(Tensor::zeros(self.params.out_ch, x.h, x.w));
+        }
+        let n = x.h * x.w;
+        let active: Vec<bool> = (0..n)
+            .map(|i| covered[i] || (0..x.c).any(|c| x.data[c * n + i].to_bits() != 0))
+            .collect();
+        if active.iter().all(|&a| a) {
+            return self.run(x, None);
+        }
+        let plan = self.skip_plan(x.h, x.w, &active)?;
+        self.run(x, Some(&plan))
+    }
+
+    /// A cheap estimate of whether [`Self::forward_masked`] pays off for coverage `covered`
+    /// (`h * w` flags): the covered bounding box grown by `2^(D+1)` pixels (about how far a
+    /// covered pixel's influence spreads) must stay under half of the frame. Planning costs
+    /// a pass over every layer, and the gathers and normalisations stay whole-frame, so a
+    /// frame that is mostly reachable from covered pixels is faster evaluated whole.
+    pub fn skip_worthwhile(&self, h: usize, w: usize, covered: &[bool]) -> bool {
+        if covered.len() != h * w || h == 0 || w == 0 {
+            return false;
+        }
+        let (mut y0, mut y1, mut x0, mut x1) = (usize::MAX, 0, usize::MAX, 0);
+        for (i, _) in covered.iter().enumerate().filter(|(_, &c)| c) {
+            let (y, x) = (i / w, i % w);
+            (y0, y1, x0, x1) = (y0.min(y), y1.max(y), x0.min(x), x1.max(x));
+        }
+        if y0 > y1 {
+            return true; // nothing covered: only the background classes are computed
+        }
+        let m = 2usize << self.params.depth();
+        let hh = (y1 + m).min(h - 1) + 1 - y0.saturating_sub(m);
+        let ww = (x1 + m).min(w - 1) + 1 - x0.saturating_sub(m);
+        2 * hh * ww < h * w
+    }
+
+    /// Per-convolution work of [`Self::forward_masked`] on an `h x w` frame with coverage
+    /// `covered` (`h * w` flags), assuming uncovered features are zero.
+    pub fn plan(&self, h: usize, w: usize, covered: &[bool]) -> Result<Vec<LayerWork>, NnError> {
+        if covered.len() != h * w {
+            return Err(NnError::Shape(format!(
+                "coverage has {} flags for a {h}x{w} frame",
+                covered.len()
+            )));
+        }
+        if h == 0 || w == 0 {
+            return Ok(Vec::new());
+        }
+        Ok(self.skip_plan(h, w, covered)?.work)
+    }
+
+    fn check_input(&self, x: &Tensor) -> Result<(), NnError> {
+        if x.c != self.params.in_ch {
+            return Err(NnError::Shape(format!(
+                "U-Net expects {} input channels, got {}",
+                self.params.in_ch, x.c
+            )));
+        }
+        Ok(())
+    }
+
+    /// Value classes of every layer ([`crate::nn::region`]) and the column plans of every
+    /// GEMM, for an `h x w` frame (`h, w > 0`) whose active input pixels are `active`.
+    fn skip_plan(&self, h: usize, w: usize, active: &[bool]) -> Result<SkipPlan, NnError> {
+        let p = &self.params;
+        let d = p.depth();
+        let (hp, wp) = p.padded_size(h, w);
+        let mut padded = vec![false; hp * wp];
+        for y in 0..h {
+            padded[y * wp..y * wp + w].copy_from_slice(&active[y * w..(y + 1) * w]);
+        }
+        let input = Classes::input(hp, wp, &padded);
+        let mut work = Vec::with_capacity(2 * d);
+        let mut enc = Vec::with_capacity(d);
+        let mut maps: Vec<Classes> = Vec::with_capacity(d);
+        for i in 0..d {
+            let src = maps.last().unwrap_or(&input);
+            let l = ConvLayout::new(p.encoder_geom(i), src.h, src.w)?;
+            let out = src.conv(4, 2, 1, (l.h_out, l.w_out));
+            let pos = (0..l.h_out).flat_map(|y| (0..l.w_out).map(move |x| (y, x)));
+            let plan = ColPlan::new(
+                pos.map(|(y, x)| (l.column(y, x), out.ids[y * out.w + x])),
+                out.count,
+            );
+            work.push(work_of(format!("encoder.{i}"), &[&plan], l.n));
+            enc.push(plan);
+            maps.push(out);
+        }
+        let mut dec: Vec<Vec<ColPlan>> = vec![Vec::new(); d];
+        let mut cur = maps.pop().expect("depth >= 1");
+        for i in (0..d).rev() {
+            let inp = if i < d - 1 { cur.concat(&maps[i]) } else { cur };
+            let (oh, ow) = if i == 0 {
+                (h, w)
+            } else {
+                (2 * inp.h, 2 * inp.w)
+            };
+            let (ci, co) = p.decoder_channels(i);
+            let (out, plans, total) = match p.decoder {
+                Decoder::TransposedConv => {
+                    let l = TconvLayout::new(ci, co, inp.h, inp.w);
+                    let out = inp.tconv();
+                    let plans: Vec<ColPlan> = (0..4)
+                        .map(|ph| {
+                            let (py, px) = (ph / 2, ph % 2);
+                            let pos = (0..inp.h)
+                                .flat_map(|y| (0..inp.w).map(move |x| (y, x)))
+                                .filter(|&(y, x)| 2 * y + py < oh && 2 * x + px < ow);
+                            ColPlan::new(
+                                pos.map(|(y, x)| {
+                                    let (yy, xx) = (2 * y + py, 2 * x + px);
+                                    (l.column(y, x), out.ids[yy * out.w + xx])
+                                }),
+                                out.count,
+                            )
+                        })
+                        .collect();
+                    (out, plans, l.n)
+                }
+                Decoder::UpsampleConv => {
+                    let u = inp.upsample2();
+                    let l = ConvLayout::new(p.decoder_geom(i), u.h, u.w)?;
+                    let out = u.conv(3, 1, 1, (l.h_out, l.w_out));
+                    let pos = (0..oh).flat_map(|y| (0..ow).map(move |x| (y, x)));
+                    let plan = ColPlan::new(
+                        pos.map(|(y, x)| (l.column(y, x), out.ids[y * out.w + x])),
+                        out.count,
+                    );
+                    (out, vec![plan], l.n)
+                }
+            };
+            let refs: Vec<&ColPlan> = plans.iter().collect();
+            work.push(work_of(format!("decoder.{i}"), &refs, total));
+            dec[i] = plans;
+            cur = out;
+        }
+        Ok(SkipPlan { enc, dec, work })
+    }
+
+    /// Whole-frame or planned evaluation.
+    fn run(&self, x: &Tensor, plan: Option<&SkipPlan>) -> Result<Tensor, NnError> {
+        let p = &self.params;
+        self.check_input(x)?;
         if x.h == 0 || x.w == 0 {
             return Ok(Tensor::zeros(p.out_ch, x.h, x.w));
         }
@@ -268,7 +453,11 @@ impl UNet {
             };
             let l = ConvLayout::new(p.encoder_geom(i), h, w)?;
             let buf = l.gather_act(src, act);
-            let raw = l.gemm(&self.enc[i].packed[0], &buf);
+            let a = &self.enc[i].packed[0];
+            let raw = match plan {
+                None => l.gemm(a, &buf),
+                Some(s) => l.gemm_planned(a, &buf, &s.enc[i]).0,
+            };
             pool::recycle(buf);
             z.push(self.finish_norm(&l, &raw, &self.enc[i].bias));
             pool::recycle(raw);
@@ -280,12 +469,12 @@ impl UNet {
                 parts.push(&z[i]);
             }
             if i == 0 {
-                let out = self.up(0, &parts, Act::Tanh, x.h, x.w);
+                let out = self.up(0, &parts, Act::Tanh, x.h, x.w, plan);
                 cur.recycle();
                 z.into_iter().for_each(Tensor::recycle);
                 return out;
             }
-            let y = self.up(i, &parts, Act::Identity, 2 * cur.h, 2 * cur.w)?;
+            let y = self.up(i, &parts, Act::Identity, 2 * cur.h, 2 * cur.w, plan)?;
             std::mem::replace(&mut cur, y).recycle();
             if self.params.norm == Norm::Instance {
                 instance_norm(&mut cur);
@@ -313,6 +502,7 @@ impl UNet {
         act: Act,
         oh: usize,
         ow: usize,
+        plan: Option<&SkipPlan>,
     ) -> Result<Tensor, NnError> {
         let layer = &self.dec[i];
         let (ci, co) = self.params.decoder_channels(i);
@@ -324,7 +514,11 @@ impl UNet {
                 let buf = l.gather_concat(parts, lrelu);
                 let mut out = Tensor::scratch(co, oh, ow);
                 for ph in 0..4 {
-                    let raw = l.gemm(&layer.packed[ph], &buf, ph);
+                    let a = &layer.packed[ph];
+                    let raw = match plan {
+                        None => l.gemm(a, &buf, ph),
+                        Some(s) => l.gemm_planned(a, &buf, ph, &s.dec[i][ph]).0,
+                    };
                     l.interleave_act(&raw, ph, Some(&layer.bias), act, &mut out);
                     pool::recycle(raw);
                 }
@@ -336,7 +530,11 @@ impl UNet {
                 let l = ConvLayout::new(self.params.decoder_geom(i), u.h, u.w)?;
                 let buf = l.gather(&u);
                 u.recycle();
-                let raw = l.gemm(&layer.packed[0], &buf);
+                let a = &layer.packed[0];
+                let raw = match plan {
+                    None => l.gemm(a, &buf),
+                    Some(s) => l.gemm_planned(a, &buf, &s.dec[i][0]).0,
+                };
                 pool::recycle(buf);
                 let mut y = l.finish(&raw, Some(&layer.bias));
                 pool::recycle(raw);
@@ -350,5 +548,16 @@ impl UNet {
                 })
             }
         }
+    }
+}
+
+/// Work summary of one convolution's plans (`total` columns per GEMM).
+fn work_of(name: String, plans: &[&ColPlan], total: usize) -> LayerWork {
+    LayerWork {
+        name,
+        positions: plans.iter().map(|p| p.positions).sum(),
+        active: plans.iter().map(|p| p.active).sum(),
+        computed: plans.iter().map(|p| p.computed(total)).sum(),
+        total: total * plans.len(),
     }
 }

@@ -13,6 +13,7 @@
 use super::activation::{lrelu, tanh_f32, Act};
 use super::gemm::{gemm_nn, PackedA};
 use super::norm::{plane_stats, NormStats};
+use super::region::{self, ColPlan};
 use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
 use rayon::prelude::*;
@@ -483,6 +484,17 @@ impl ConvLayout {
                 }
             }
         }
+    }
+
+    /// GEMM column of output pixel (y, x).
+    pub fn column(&self, y: usize, x: usize) -> usize {
+        y * self.pitch + x
+    }
+
+    /// [`Self::gemm`] exact only at the columns `plan` covers, computing the active ones and
+    /// one per background class ([`region::gemm_planned`]); also returns the columns computed.
+    pub fn gemm_planned(&self, a: &PackedA, buf: &[f32], plan: &ColPlan) -> (Vec<f32>, usize) {
+        region::gemm_planned(a, buf, &self.rows(), self.n, plan)
     }
 
     /// Raw GEMM output (`c_out x n`, row stride `n`) of packed weights on a gathered buffer.

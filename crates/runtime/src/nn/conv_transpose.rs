@@ -8,6 +8,7 @@
 
 use super::activation::Act;
 use super::gemm::{gemm_nn, PackedA};
+use super::region::{self, ColPlan};
 use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
 use rayon::prelude::*;
@@ -141,6 +142,24 @@ impl TconvLayout {
                 dst[(h + 1) * p..].fill(0.0);
             });
         buf
+    }
+
+    /// GEMM column (in every phase) of input-grid position (y, x), i.e. output pixel
+    /// (2y + py, 2x + px) of phase (py, px).
+    pub fn column(&self, y: usize, x: usize) -> usize {
+        y * self.pitch + x
+    }
+
+    /// [`Self::gemm`] exact only at the columns `plan` covers ([`region::gemm_planned`]);
+    /// also returns the columns computed.
+    pub fn gemm_planned(
+        &self,
+        a: &PackedA,
+        buf: &[f32],
+        ph: usize,
+        plan: &ColPlan,
+    ) -> (Vec<f32>, usize) {
+        region::gemm_planned(a, buf, &self.rows(ph), self.n, plan)
     }
 
     /// Raw GEMM output of phase `ph` (`c_out x n`).

@@ -12,6 +12,7 @@ pub mod conv_transpose;
 pub mod dense;
 pub mod gemm;
 pub mod norm;
+pub mod region;
 pub mod tensor;
 pub mod upsample;
 

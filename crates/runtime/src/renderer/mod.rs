@@ -150,6 +150,8 @@ pub struct Renderer {
     renderers: Vec<RendererSlot>,
     /// Per `scene.primitives` entry: its binding, checked against the asset.
     owners: Vec<PrimOwner>,
+    /// Whether `unet` renderers skip the work no covered pixel reaches (same output).
+    skip_uncovered: bool,
 }
 
 impl Renderer {
@@ -221,6 +223,7 @@ impl Renderer {
             textures,
             renderers,
             owners,
+            skip_uncovered: true,
         })
     }
 
@@ -243,6 +246,15 @@ impl Renderer {
     /// Number of neural textures of the asset.
     pub fn neural_texture_count(&self) -> usize {
         self.textures.len()
+    }
+
+    /// Turns receptive-field skipping of `unet` renderers on (the default) or off: with it,
+    /// when the renderer's pixels reach little of the frame
+    /// ([`crate::network::unet::UNet::skip_worthwhile`]), convolution outputs that no pixel
+    /// it covers can reach are computed once per value class instead of at every position.
+    /// The frames are bit-identical either way; off is for benchmarks and checks.
+    pub fn set_skip_uncovered(&mut self, on: bool) {
+        self.skip_uncovered = on;
     }
 
     /// Draws the scene as `camera` sees it into a `width x height` frame.

@@ -102,7 +102,17 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                     }
                 });
                 let x = Tensor::from_vec(c, h, w, x).map_err(run_err)?;
-                let t = unet.forward(&x).map_err(run_err)?;
+                let covered: Vec<bool> = if r.skip_uncovered {
+                    own.owner.iter().map(|&o| o == id).collect()
+                } else {
+                    Vec::new()
+                };
+                let t = if r.skip_uncovered && unet.skip_worthwhile(h, w, &covered) {
+                    unet.forward_masked(&x, &covered)
+                } else {
+                    unet.forward(&x)
+                }
+                .map_err(run_err)?;
                 if t.c != slot.output_channels || t.h != h || t.w != w {
                     return Err(run_err(crate::nn::NnError::Shape(format!(
                         "U-Net output {}x{}x{}, expected {}x{h}x{w}",
