@@ -2,7 +2,7 @@
 //! seeds, the committed corpus `fuzz/corpus/<target>/` and every regression file
 //! `fuzz/regressions/<target>/` (inputs that once crashed: each must now return normally),
 //! then a short seeded mutation run per target: the stable-toolchain smoke version of the
-//! fuzzers, a few seconds each.
+//! fuzzers, a few seconds each (`DNR_STRESS_SCALE=100` for a longer run).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
@@ -52,14 +52,23 @@ fn seeds_corpus_and_regressions_run_clean() {
     }
 }
 
+/// `DNR_STRESS_SCALE=N` multiplies the mutation cases (the longer version of this smoke run).
+fn stress_scale() -> usize {
+    std::env::var("DNR_STRESS_SCALE")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1usize)
+        .max(1)
+}
+
 /// Seeded byte flips, insertions, deletions and splices of the seeds.
 #[test]
 fn short_mutation_run_is_clean() {
-    const CASES: usize = 30_000;
+    let cases = 30_000 * stress_scale();
     for (t, (name, f)) in TARGETS.into_iter().enumerate() {
         let seeds = seeds(name);
         let mut rng = ChaCha8Rng::seed_from_u64(0xf022 + t as u64);
-        for case in 0..CASES {
+        for case in 0..cases {
             let mut input = seeds[rng.random_range(0..seeds.len())].clone();
             for _ in 0..rng.random_range(1..8) {
                 let len = input.len();

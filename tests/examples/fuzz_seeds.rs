@@ -5,7 +5,11 @@ use std::path::PathBuf;
 use dnr_conformance::fuzz_targets::{seeds, TARGETS};
 
 fn main() -> std::io::Result<()> {
-    let root = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "fuzz/corpus".into()));
+    let root = PathBuf::from(
+        std::env::args()
+            .nth(1)
+            .unwrap_or_else(|| "fuzz/corpus".into()),
+    );
     for (name, _) in TARGETS {
         let dir = root.join(name);
         std::fs::create_dir_all(&dir)?;

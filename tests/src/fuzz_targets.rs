@@ -47,7 +47,11 @@ pub fn weights(data: &[u8]) {
     let Some((&head, mut rest)) = data.split_first() else {
         return;
     };
-    let dtype = if head % 2 == 0 { DType::F16 } else { DType::F32 };
+    let dtype = if head % 2 == 0 {
+        DType::F16
+    } else {
+        DType::F32
+    };
     let rank = usize::from(head / 2 % 4) + 1;
     let mut shape = Vec::with_capacity(rank);
     for _ in 0..rank {

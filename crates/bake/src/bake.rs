@@ -31,6 +31,8 @@ pub struct BakeOptions {
     pub progress: bool,
     /// Wall-clock seconds between checkpoints.
     pub checkpoint_every: f64,
+    /// Capture size limits.
+    pub limits: crate::capture::Limits,
 }
 
 /// Final figures of a bake.
@@ -53,6 +55,9 @@ pub struct Summary {
     pub asset_bytes: u64,
     /// Divergences recovered from during training (see `train::run`).
     pub recoveries: usize,
+    /// Every held-out evaluation during training (in the report, not in `--json`).
+    #[serde(skip)]
+    pub records: Vec<Record>,
 }
 
 #[derive(Serialize)]
@@ -112,6 +117,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     }
     let load = LoadOptions {
         mesh: opts.mesh.clone(),
+        limits: opts.limits,
         ..LoadOptions::default()
     };
     let capture = Capture::load(&opts.capture, &load)?;
@@ -244,6 +250,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         train_seconds,
         asset_bytes,
         recoveries: recoveries.len(),
+        records: records.clone(),
     };
     if let Some(path) = &opts.report {
         let rep = Report {

@@ -117,7 +117,8 @@ pub fn build(
         wrap_s: wrap_mode(pyr.wrap_s),
         wrap_t: wrap_mode(pyr.wrap_t),
         view_dependence: sh.map(|(d, f)| ViewDependence::spherical_harmonics(d, f)),
-        compression: LevelCompression::Zip,
+        // Per level, the smallest of the lossless methods (zeros of unseen texels compress).
+        compression: LevelCompression::Smallest,
     });
     let out = u32_of(out_ch)?;
     let (renderer, tensors) = match net {

@@ -84,6 +84,11 @@ struct Args {
     /// Print the final figures as JSON on stdout.
     #[arg(long)]
     json: bool,
+    /// Raise (or lower) a capture size limit, NAME=VALUE; repeatable. Names: max_frames
+    /// (default 10000), max_image_side (8192), max_total_pixels (2^28), max_json_bytes,
+    /// max_mesh_bytes, max_triangles (20000000).
+    #[arg(long = "limit", value_name = "NAME=VALUE")]
+    limits: Vec<String>,
 }
 
 fn config(a: &Args) -> TrainConfig {
@@ -136,7 +141,14 @@ fn config(a: &Args) -> TrainConfig {
 
 fn run(a: Args) -> Result<()> {
     let cfg = config(&a);
+    let mut limits = dnr_bake::capture::Limits::default();
+    for spec in &a.limits {
+        limits
+            .set(spec)
+            .map_err(|e| anyhow::anyhow!("--limit: {e}"))?;
+    }
     let opts = BakeOptions {
+        limits,
         capture: a.capture.clone(),
         output: a.output.clone(),
         mesh: a.mesh.clone(),

@@ -351,3 +351,47 @@ fn bad_last_row_and_unsupported_camera_model() {
         "{msg}"
     );
 }
+
+/// A PNG whose header claims 60000 x 60000 pixels (14 GB decoded) and has no pixel data:
+/// refused from the header, before any pixel buffer exists.
+#[test]
+fn image_header_claiming_a_huge_size_is_refused_before_decoding() {
+    let dir = simple_capture(3, 16);
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend_from_slice(&60000u32.to_be_bytes());
+    ihdr.extend_from_slice(&60000u32.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 6, 0, 0, 0]); // 8-bit RGBA
+    png.extend_from_slice(&13u32.to_be_bytes());
+    png.extend_from_slice(&ihdr);
+    png.extend_from_slice(&crc32fast::hash(&ihdr).to_be_bytes());
+    std::fs::write(dir.path().join("images/f_1.png"), &png).unwrap();
+    let (e, msg) = load_err_with(dir.path(), &LoadOptions::default());
+    assert!(
+        matches!(e, CaptureError::TooLarge { .. })
+            && msg.contains("f_1.png")
+            && msg.contains("60000"),
+        "{msg}"
+    );
+    // A user who trusts the capture can raise the limit; then the missing pixel data is
+    // the error, still without a 14 GB allocation (the total-pixel limit stops it first).
+    let mut limits = Limits::default();
+    limits.set("max_image_side=70000").unwrap();
+    let (e, msg) = load_err_with(
+        dir.path(),
+        &LoadOptions {
+            limits,
+            ..Default::default()
+        },
+    );
+    assert!(
+        matches!(e, CaptureError::TooLarge { .. }) && msg.contains("pixels"),
+        "{msg}"
+    );
+    assert!(limits
+        .set("max_nonsense=1")
+        .unwrap_err()
+        .contains("max_frames"));
+    assert!(limits.set("max_frames").is_err());
+    assert!(limits.set("max_frames=-3").is_err());
+}

@@ -4,7 +4,6 @@
 
 mod capture_common;
 
-
 use dnr_bake::capture::{Capture, LoadOptions};
 use dnr_bake::train::config::{Arch, Preset, TrainConfig};
 use dnr_bake::train::views::{self, View};
@@ -67,19 +66,31 @@ fn a_non_finite_loss_rolls_back_halves_the_rates_then_fails_clearly() {
         assert_eq!(state.recoveries.len(), MAX_RECOVERIES);
         for (k, r) in state.recoveries.iter().enumerate() {
             let want = 1e-2 / 2f32.powi(k as i32 + 1);
-            assert!((r.lr_net - want).abs() <= want * 1e-6, "{arch:?} recovery {k}: {r:?}");
+            assert!(
+                (r.lr_net - want).abs() <= want * 1e-6,
+                "{arch:?} recovery {k}: {r:?}"
+            );
             assert_eq!(r.rolled_back_to, 0, "the only good state is the start");
             assert!(r.reason.contains("NaN"), "{}", r.reason);
         }
         // The rolled-back parameters are the good ones: finite.
-        assert!(t.pyr.levels.iter().all(|l| l.data.iter().all(|v| v.is_finite())));
+        assert!(t
+            .pyr
+            .levels
+            .iter()
+            .all(|l| l.data.iter().all(|v| v.is_finite())));
     }
 }
 
 #[test]
 fn a_learning_rate_far_too_high_stays_finite() {
     let (train, _) = capture(8, 24, |x, y| {
-        [(40 + 8 * x) as u8, (200 - 6 * y) as u8, (60 + 3 * (x + y)) as u8, 255]
+        [
+            (40 + 8 * x) as u8,
+            (200 - 6 * y) as u8,
+            (60 + 3 * (x + y)) as u8,
+            255,
+        ]
     });
     for arch in [Arch::None, Arch::Mlp, Arch::Unet] {
         // 100x the paper's 1e-3.
@@ -89,7 +100,11 @@ fn a_learning_rate_far_too_high_stays_finite() {
         assert_eq!(t.step, 40);
         let psnr = mean_psnr(&mut t, &train);
         assert!(psnr.is_finite() && psnr > 5.0, "{arch:?}: {psnr} dB");
-        assert!(t.pyr.levels.iter().all(|l| l.data.iter().all(|v| v.is_finite())));
+        assert!(t
+            .pyr
+            .levels
+            .iter()
+            .all(|l| l.data.iter().all(|v| v.is_finite())));
     }
 }
 
@@ -155,5 +170,9 @@ fn almost_no_object_pixels_and_background_crops() {
         let loss = t.step(&train).unwrap();
         assert!(loss.is_finite());
     }
-    assert!(t.pyr.levels.iter().all(|l| l.data.iter().all(|v| v.is_finite())));
+    assert!(t
+        .pyr
+        .levels
+        .iter()
+        .all(|l| l.data.iter().all(|v| v.is_finite())));
 }

@@ -67,6 +67,9 @@ pub enum LevelCompression {
     Zip,
     /// Wavelet + Huffman.
     Piz,
+    /// Not a stored method: [`encode_level`] tries every method of [`LevelCompression::ALL`]
+    /// (all lossless for half data) and keeps the smallest file, per level.
+    Smallest,
 }
 
 impl LevelCompression {
@@ -87,6 +90,8 @@ impl LevelCompression {
             LevelCompression::Zips => C::ZIP1,
             LevelCompression::Zip => C::ZIP16,
             LevelCompression::Piz => C::PIZ,
+            // Resolved by `encode_level` before it gets here; ZIP is the usual winner.
+            LevelCompression::Smallest => C::ZIP16,
         }
     }
 
@@ -111,6 +116,7 @@ impl LevelCompression {
             LevelCompression::Zips => "ZIPS",
             LevelCompression::Zip => "ZIP",
             LevelCompression::Piz => "PIZ",
+            LevelCompression::Smallest => "smallest",
         }
     }
 }
@@ -133,6 +139,16 @@ pub fn encode_level(
     level_index: usize,
     compression: LevelCompression,
 ) -> Result<Vec<u8>> {
+    if compression == LevelCompression::Smallest {
+        let mut best: Option<Vec<u8>> = None;
+        for c in LevelCompression::ALL {
+            let bytes = encode_level(level, level_index, c)?;
+            if best.as_ref().is_none_or(|b| bytes.len() < b.len()) {
+                best = Some(bytes);
+            }
+        }
+        return best.ok_or_else(|| Error::invalid("no compression"));
+    }
     use exr::prelude::{
         AnyChannel, AnyChannels, Blocks, Encoding, FlatSamples, Image, Layer, LayerAttributes,
         LineOrder, SmallVec, WritableImage,

@@ -68,6 +68,59 @@ impl Limits {
         }
     }
 
+    /// Every limit by the name [`Limits::set`] takes (the field name), with its value.
+    pub fn entries(&self) -> [(&'static str, u64); 10] {
+        [
+            ("max_file_bytes", self.max_file_bytes),
+            ("max_json_bytes", self.max_json_bytes),
+            ("max_buffer_bytes", self.max_buffer_bytes),
+            ("max_texture_side", u64::from(self.max_texture_side)),
+            ("max_levels", u64::from(self.max_levels)),
+            ("max_channels", u64::from(self.max_channels)),
+            ("max_total_texel_values", self.max_total_texel_values),
+            ("max_weight_elements", self.max_weight_elements),
+            ("max_tensors", u64::from(self.max_tensors)),
+            ("max_tensor_rank", u64::from(self.max_tensor_rank)),
+        ]
+    }
+
+    /// Sets one limit from `NAME=VALUE` (a field name of [`Limits`], e.g.
+    /// `max_texture_side=32768`), as a command-line flag gives it. The message of an error
+    /// lists the names.
+    pub fn set(&mut self, spec: &str) -> std::result::Result<(), String> {
+        let names = || {
+            self.entries()
+                .iter()
+                .map(|(n, _)| *n)
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let (name, value) = spec
+            .split_once('=')
+            .ok_or_else(|| format!("expected NAME=VALUE, got `{spec}` (names: {})", names()))?;
+        let value: u64 = value
+            .trim()
+            .parse()
+            .map_err(|e| format!("limit `{name}`: `{value}` is not a whole number: {e}"))?;
+        let narrow = |v: u64| -> std::result::Result<u32, String> {
+            u32::try_from(v).map_err(|_| format!("limit `{name}`: {v} is over {}", u32::MAX))
+        };
+        match name.trim() {
+            "max_file_bytes" => self.max_file_bytes = value,
+            "max_json_bytes" => self.max_json_bytes = value,
+            "max_buffer_bytes" => self.max_buffer_bytes = value,
+            "max_texture_side" => self.max_texture_side = narrow(value)?,
+            "max_levels" => self.max_levels = narrow(value)?,
+            "max_channels" => self.max_channels = narrow(value)?,
+            "max_total_texel_values" => self.max_total_texel_values = value,
+            "max_weight_elements" => self.max_weight_elements = value,
+            "max_tensors" => self.max_tensors = narrow(value)?,
+            "max_tensor_rank" => self.max_tensor_rank = narrow(value)?,
+            other => return Err(format!("unknown limit `{other}` (names: {})", names())),
+        }
+        Ok(())
+    }
+
     /// `Err(LimitExceeded)` when `value > limit`.
     pub fn check(what: &str, value: u64, limit: u64) -> Result<()> {
         if value > limit {

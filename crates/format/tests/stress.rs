@@ -153,3 +153,21 @@ fn weight_subnormals_round_trip_as_f16_does() {
     let back = decode_tensor(&bytes, &[3], &DType::F32, &Limits::default()).unwrap();
     assert_eq!(back, tiny);
 }
+
+#[test]
+fn limits_can_be_raised_by_name() {
+    let mut l = dnr_format::Limits::default();
+    l.set("max_texture_side=32768").unwrap();
+    assert_eq!(l.max_texture_side, 32768);
+    l.set(" max_weight_elements = 5 ").unwrap();
+    assert_eq!(l.max_weight_elements, 5);
+    for (name, _) in dnr_format::Limits::default().entries() {
+        l.set(&format!("{name}=7")).unwrap();
+    }
+    assert!(l.entries().iter().all(|(_, v)| *v == 7));
+    let e = l.set("max_texture_sides=1").unwrap_err();
+    assert!(e.contains("max_texture_side"), "{e}");
+    assert!(l.set("max_levels=4294967296").is_err());
+    assert!(l.set("max_levels=x").is_err());
+    assert!(l.set("max_levels").is_err());
+}

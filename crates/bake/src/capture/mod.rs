@@ -45,6 +45,37 @@ pub struct Limits {
     pub mesh: MeshLimits,
 }
 
+impl Limits {
+    /// Sets one limit from `NAME=VALUE`, as `dnr-bake --limit` gives it. Names:
+    /// `max_frames`, `max_image_side`, `max_total_pixels`, `max_json_bytes`,
+    /// `max_mesh_bytes`, `max_triangles`.
+    pub fn set(&mut self, spec: &str) -> Result<(), String> {
+        const NAMES: &str = "max_frames, max_image_side, max_total_pixels, max_json_bytes, max_mesh_bytes, max_triangles";
+        let (name, value) = spec
+            .split_once('=')
+            .ok_or_else(|| format!("expected NAME=VALUE, got `{spec}` (names: {NAMES})"))?;
+        let value: u64 = value
+            .trim()
+            .parse()
+            .map_err(|e| format!("limit `{name}`: `{value}` is not a whole number: {e}"))?;
+        let size =
+            |v: u64| usize::try_from(v).map_err(|_| format!("limit `{name}`: {v} is too large"));
+        match name.trim() {
+            "max_frames" => self.max_frames = size(value)?,
+            "max_image_side" => {
+                self.max_image_side = u32::try_from(value)
+                    .map_err(|_| format!("limit `{name}`: {value} is over {}", u32::MAX))?
+            }
+            "max_total_pixels" => self.max_total_pixels = value,
+            "max_json_bytes" => self.max_json_bytes = value,
+            "max_mesh_bytes" => self.mesh.max_file_bytes = value,
+            "max_triangles" => self.mesh.max_triangles = size(value)?,
+            other => return Err(format!("unknown limit `{other}` (names: {NAMES})")),
+        }
+        Ok(())
+    }
+}
+
 impl Default for Limits {
     fn default() -> Self {
         Limits {

@@ -52,7 +52,9 @@ pub enum TrainError {
     Checkpoint(#[from] checkpoint::CheckpointError),
     /// Training diverged again and again although each recovery rolled back and halved the
     /// learning rates.
-    #[error("training diverged {recoveries} times (last at step {step}: {reason}); try a lower --lr")]
+    #[error(
+        "training diverged {recoveries} times (last at step {step}: {reason}); try a lower --lr"
+    )]
     Diverged {
         /// Recoveries tried.
         recoveries: usize,
@@ -828,7 +830,11 @@ pub fn run(
                    reason: String|
      -> Result<(), TrainError> {
         let step = trainer.step;
-        let keep = (state.train_secs, state.next_eval, std::mem::take(&mut state.records));
+        let keep = (
+            state.train_secs,
+            state.next_eval,
+            std::mem::take(&mut state.records),
+        );
         // Roll back first, so that even a run that gives up leaves a good state behind.
         let lr_before = (trainer.cfg.lr_net, trainer.cfg.lr_tex);
         trainer.restore(good, Path::new("(in-memory snapshot)"))?;
@@ -913,7 +919,11 @@ pub fn run(
     // A NaN final PSNR counts as worse.
     let worse = last.is_nan() || last < good.1 - BEST_STATE_MARGIN_DB;
     if good.1.is_finite() && worse {
-        let keep = (state.train_secs, state.next_eval, std::mem::take(&mut state.records));
+        let keep = (
+            state.train_secs,
+            state.next_eval,
+            std::mem::take(&mut state.records),
+        );
         trainer.restore(&good.0, Path::new("(in-memory snapshot)"))?;
         (state.train_secs, state.next_eval, state.records) = keep;
         eprintln!(

@@ -1,6 +1,7 @@
 //! `dnr bench train`: the training step and U-Net inference against the sgemm peak measured in
 //! the same run, and (with `--torch`) PyTorch's same step timed in the same run.
 //! `dnr bench render ASSET`: ms per frame of an asset at several sizes.
+//! `dnr bench bake CAPTURE`: held-out error against bake seconds (see [`super::bench_bake`]).
 
 use std::path::PathBuf;
 use std::process::{Command, ExitCode};
@@ -37,6 +38,37 @@ enum What {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Held-out PSNR against bake seconds for presets and baselines: one bake per
+    /// configuration with the largest budget, evaluated along the way; writes a JSON table
+    /// and a PNG plot (PSNR against log seconds, one curve per configuration).
+    ///
+    /// Configurations: the presets fast, balanced, quality, paper, and the baselines
+    /// classical (mean-colour texture, no learning), texture (learned texture only), mlp,
+    /// unet-nosh (no SH layer), unet-1level (no pyramid), all built on balanced.
+    ///
+    /// Example: dnr bench bake capture/ --budgets 60,180,600 --out bench/
+    Bake {
+        /// Capture folder.
+        capture: PathBuf,
+        /// Presets (or any configuration names) to run.
+        #[arg(long, value_delimiter = ',', default_value = "fast,balanced")]
+        presets: Vec<String>,
+        /// Leave out the baselines (classical, texture, mlp, unet-nosh, unet-1level).
+        #[arg(long)]
+        no_baselines: bool,
+        /// Budgets in seconds.
+        #[arg(long, value_delimiter = ',', default_value = "60,180,600")]
+        budgets: Vec<f64>,
+        /// Proxy mesh instead of the capture's.
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        /// Folder for the assets, reports, table (bench_bake.json) and plot (bench_bake.png).
+        #[arg(long, default_value = "bench-bake")]
+        out: PathBuf,
+        /// Worker threads (default: all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
     /// Milliseconds per frame of an asset at several sizes (camera on a circle around it).
     Render {
         /// The asset.
@@ -60,6 +92,38 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             json,
         } => train(*reps, torch.as_ref(), peer, json.as_ref()),
         What::Render { asset, sizes, reps } => render(asset, sizes, *reps),
+        What::Bake {
+            capture,
+            presets,
+            no_baselines,
+            budgets,
+            mesh,
+            out,
+            threads,
+        } => {
+            let mut configs = presets.clone();
+            if !no_baselines {
+                for b in super::bench_bake::BASELINES {
+                    if !configs.iter().any(|c| c == b) {
+                        configs.push(b.to_string());
+                    }
+                }
+            }
+            let (json, plot) = super::bench_bake::default_paths(out);
+            let table = super::bench_bake::run(&super::bench_bake::Plan {
+                capture,
+                configs,
+                budgets: budgets.clone(),
+                mesh: mesh.as_deref(),
+                out,
+                json: &json,
+                plot: &plot,
+                threads: *threads,
+            })?;
+            println!("{}", super::bench_bake::markdown(&table));
+            eprintln!("wrote {} and {}", json.display(), plot.display());
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -8,7 +8,7 @@ use anyhow::Context;
 use dnr_format::asset::{bound_primitive_values, root_extension_value};
 use dnr_format::exr_codec::{read_level_header, LevelCompression};
 use dnr_format::model::{Extension, PrimitiveExtension};
-use dnr_format::{Container, Limits};
+use dnr_format::Container;
 use serde::Serialize;
 
 /// Arguments of `dnr inspect`.
@@ -19,6 +19,11 @@ pub struct Args {
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Raise (or lower) a reader limit, NAME=VALUE; repeatable (e.g. max_texture_side=32768).
+    /// Names: max_file_bytes, max_json_bytes, max_buffer_bytes, max_texture_side, max_levels,
+    /// max_channels, max_total_texel_values, max_weight_elements, max_tensors, max_tensor_rank.
+    #[arg(long = "limit", value_name = "NAME=VALUE")]
+    pub limits: Vec<String>,
 }
 
 #[derive(Serialize)]
@@ -91,7 +96,7 @@ struct Bytes {
 /// Prints the summary.
 pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
     let path = &args.file;
-    let limits = Limits::default();
+    let limits = super::validate::limits_from(&args.limits)?;
     let container = Container::read(path, &limits)
         .with_context(|| format!("cannot read {}", path.display()))?;
     let summary = summarize(&container, path)

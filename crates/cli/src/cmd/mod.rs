@@ -1,6 +1,7 @@
 //! One module per subcommand.
 
 pub mod bench;
+pub mod bench_bake;
 pub mod inspect;
 pub mod validate;
 

@@ -15,11 +15,25 @@ pub struct Args {
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Raise (or lower) a reader limit, NAME=VALUE; repeatable (e.g. max_texture_side=32768).
+    /// Names: max_file_bytes, max_json_bytes, max_buffer_bytes, max_texture_side, max_levels,
+    /// max_channels, max_total_texel_values, max_weight_elements, max_tensors, max_tensor_rank.
+    #[arg(long = "limit", value_name = "NAME=VALUE")]
+    pub limits: Vec<String>,
+}
+
+/// The default limits with the `--limit` flags applied.
+pub(crate) fn limits_from(specs: &[String]) -> anyhow::Result<Limits> {
+    let mut l = Limits::default();
+    for s in specs {
+        l.set(s).map_err(|e| anyhow::anyhow!("--limit: {e}"))?;
+    }
+    Ok(l)
 }
 
 /// Validates, prints the report, exits 1 if it has errors.
 pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
-    let report = validate_file(&args.file, &Limits::default())
+    let report = validate_file(&args.file, &limits_from(&args.limits)?)
         .with_context(|| format!("cannot validate {}", args.file.display()))?;
     let (errors, warnings, infos) = (
         report.count(Severity::Error),
