@@ -174,6 +174,12 @@ impl UNetParams {
     }
 }
 
+/// Cost of planning [`UNet::forward_masked`] per position of every layer, in FLOPs of GEMM
+/// work: measured planning at about 29 ns per position (20 ms for a 512x512 frame) while the
+/// CPU-sized U-Net's convolutions ran at about 88 GFLOP/s on 2 cores (`unet_skip` test
+/// `timing`, `dnr bench render`), so 29e-9 * 88e9 = 2500. See [`UNet::skip_worthwhile`].
+pub const PLAN_FLOPS_PER_POSITION: f64 = 2500.0;
+
 /// Work of one convolution of a masked forward pass ([`UNet::plan`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct LayerWork {
@@ -310,10 +316,12 @@ impl UNet {
     }
 
     /// A cheap estimate of whether [`Self::forward_masked`] pays off for coverage `covered`
-    /// (`h * w` flags): the covered bounding box grown by `2^(D+1)` pixels (about how far a
-    /// covered pixel's influence spreads) must stay under half of the frame. Planning costs
-    /// a pass over every layer, and the gathers and normalisations stay whole-frame, so a
-    /// frame that is mostly reachable from covered pixels is faster evaluated whole.
+    /// (`h * w` flags). The covered bounding box grown by `2^(D+1)` pixels (about how far a
+    /// covered pixel's influence spreads) gives the fraction of the convolution work that
+    /// stays; the rest is the saving. Planning classifies every position of every layer
+    /// whatever the widths, and the gathers and normalisations stay whole-frame, so skipping
+    /// must save more than [`PLAN_FLOPS_PER_POSITION`] FLOPs per planned position: thin
+    /// networks (few FLOPs per position) and mostly covered frames are faster evaluated whole.
     pub fn skip_worthwhile(&self, h: usize, w: usize, covered: &[bool]) -> bool {
         if covered.len() != h * w || h == 0 || w == 0 {
             return false;
@@ -329,7 +337,12 @@ impl UNet {
         let m = 2usize << self.params.depth();
         let hh = (y1 + m).min(h - 1) + 1 - y0.saturating_sub(m);
         let ww = (x1 + m).min(w - 1) + 1 - x0.saturating_sub(m);
-        2 * hh * ww < h * w
+        let kept = (hh * ww) as f64 / (h * w) as f64;
+        let saved = (1.0 - kept) * self.params.flops(h, w) as f64;
+        let (hp, wp) = self.params.padded_size(h, w);
+        // Input, encoder and decoder maps: about (2 + 2/3) frames of positions.
+        let positions = (hp * wp) as f64 * (8.0 / 3.0);
+        kept < 0.5 && saved > PLAN_FLOPS_PER_POSITION * positions
     }
 
     /// Per-convolution work of [`Self::forward_masked`] on an `h x w` frame with coverage
