@@ -77,8 +77,11 @@ pub fn transforms(data: &[u8]) {
     );
 }
 
+/// A fuzz target body: takes any bytes, must return normally.
+pub type Target = fn(&[u8]);
+
 /// The targets by name, as `fuzz/fuzz_targets/<name>.rs` and `fuzz/corpus/<name>/` call them.
-pub const TARGETS: [(&str, fn(&[u8])); 4] = [
+pub const TARGETS: [(&str, Target); 4] = [
     ("asset_reader", asset_reader),
     ("exr_level", exr_level),
     ("weights", weights),

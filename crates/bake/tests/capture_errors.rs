@@ -352,7 +352,7 @@ fn bad_last_row_and_unsupported_camera_model() {
     );
 }
 
-/// A PNG whose header claims 60000 x 60000 pixels (14 GB decoded) and has no pixel data:
+/// A PNG whose header claims 60000 x 60000 pixels (14 GB decoded) with 4 bytes of pixel data:
 /// refused from the header, before any pixel buffer exists.
 #[test]
 fn image_header_claiming_a_huge_size_is_refused_before_decoding() {
@@ -362,9 +362,19 @@ fn image_header_claiming_a_huge_size_is_refused_before_decoding() {
     ihdr.extend_from_slice(&60000u32.to_be_bytes());
     ihdr.extend_from_slice(&60000u32.to_be_bytes());
     ihdr.extend_from_slice(&[8, 6, 0, 0, 0]); // 8-bit RGBA
-    png.extend_from_slice(&13u32.to_be_bytes());
-    png.extend_from_slice(&ihdr);
-    png.extend_from_slice(&crc32fast::hash(&ihdr).to_be_bytes());
+                                              // IHDR, then a few bytes of IDAT (the decoder reads the header up to the first IDAT)
+                                              // and IEND: a well-formed file whose pixel data is far too short.
+    for (kind, body) in [
+        (&b"IHDR"[..], &ihdr[4..]),
+        (&b"IDAT"[..], &[0x78, 0x9c, 0x03, 0x00][..]),
+        (&b"IEND"[..], &[][..]),
+    ] {
+        let mut chunk = kind.to_vec();
+        chunk.extend_from_slice(body);
+        png.extend_from_slice(&(body.len() as u32).to_be_bytes());
+        png.extend_from_slice(&chunk);
+        png.extend_from_slice(&crc32fast::hash(&chunk).to_be_bytes());
+    }
     std::fs::write(dir.path().join("images/f_1.png"), &png).unwrap();
     let (e, msg) = load_err_with(dir.path(), &LoadOptions::default());
     assert!(
