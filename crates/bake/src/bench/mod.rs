@@ -6,7 +6,9 @@ use crate::kernels::adam::{Adam, AdamConfig};
 use crate::kernels::loss::l1_loss;
 use crate::kernels::unet::UNetTrain;
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
+use dnr_runtime::nn::conv::ConvLayout;
 use dnr_runtime::nn::gemm::{gemm_nn, simd_level, PackedA, SimdLevel};
+use dnr_runtime::nn::tensor::pool;
 use dnr_runtime::nn::Tensor;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -75,7 +77,7 @@ fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
 #[derive(Clone, Debug)]
 pub struct BenchRow {
     /// "train" (U-Net forward, backward, Adam), "step" (the baker's whole step, texture
-    /// included) or "infer".
+    /// included), "infer", or "encoder GEMMs" (see [`bench_encoder_gemm`]).
     pub kind: &'static str,
     /// U-Net widths.
     pub widths: Vec<usize>,
@@ -151,6 +153,42 @@ pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     }
 }
 
+/// The encoder convolutions alone, as GEMMs on their gathered inputs (gathers, bias, norms
+/// and activations outside the timing): the rate of the convolution kernels themselves, which
+/// the "infer" row's whole-network figure understates. FLOPs are the convolutions' own (the
+/// layout's junk columns are computed but not counted).
+pub fn bench_encoder_gemm(widths: &[usize], size: usize, reps: usize) -> BenchRow {
+    let p = bench_params(widths);
+    let mut r = ChaCha8Rng::seed_from_u64(4);
+    let (mut h, mut w, mut flops) = (size, size, 0u64);
+    let mut layers = Vec::with_capacity(p.depth());
+    for i in 0..p.depth() {
+        let g = p.encoder_geom(i);
+        let l = ConvLayout::new(g, h, w).expect("encoder geometry");
+        let buf = l.gather(&random_tensor(&mut r, g.c_in, h, w));
+        let wts: Vec<f32> = (0..g.weight_len())
+            .map(|_| r.random_range(-0.1..0.1))
+            .collect();
+        let a = l.pack_weights(&wts);
+        flops += 2 * g.macs(h, w);
+        (h, w) = (l.h_out, l.w_out);
+        layers.push((l, a, buf));
+    }
+    let (t_min, t_med) = time_min_median(reps, || {
+        for (l, a, buf) in &layers {
+            pool::recycle(std::hint::black_box(l.gemm(a, buf)));
+        }
+    });
+    BenchRow {
+        kind: "encoder GEMMs",
+        widths: widths.to_vec(),
+        size,
+        ms_min: t_min * 1e3,
+        ms_median: t_med * 1e3,
+        gflop: flops as f64 * 1e-9,
+    }
+}
+
 /// A full benchmark run.
 #[derive(Clone, Debug)]
 pub struct BenchReport {
@@ -188,6 +226,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
         for size in [256, 512] {
             rows.push(bench_infer(widths, size, reps));
         }
+        rows.push(bench_encoder_gemm(widths, 512, reps));
     }
     BenchReport {
         peak_gflops: peak,
