@@ -187,8 +187,12 @@ impl Checkpoint {
         let hend = 16 + hlen as usize;
         let header: Header =
             serde_json::from_slice(&body[16..hend]).map_err(|e| corrupt(&e.to_string()))?;
-        let total: u64 = header.arrays.iter().map(|(_, n)| *n).sum();
-        if total.checked_mul(4) != Some((body.len() - hend) as u64) {
+        // Checked: a crafted header (with a valid CRC) could make the lengths wrap around.
+        let total = header
+            .arrays
+            .iter()
+            .try_fold(0u64, |acc, (_, n)| acc.checked_add(*n));
+        if total.and_then(|t| t.checked_mul(4)) != Some((body.len() - hend) as u64) {
             return Err(corrupt("array lengths disagree with the file size"));
         }
         let mut arrays = Vec::with_capacity(header.arrays.len());
@@ -277,6 +281,19 @@ mod tests {
             std::fs::write(&p, &b).unwrap();
             assert!(Checkpoint::read(&p).is_err(), "flip at {i} accepted");
         }
+        // Array lengths that wrap around u64 (2^63 + 2^63 = 0 bytes) behind a valid CRC.
+        let mut h = c.header.clone();
+        h.arrays = vec![("a".into(), 1 << 63), ("b".into(), 1 << 63)];
+        let json = serde_json::to_vec(&h).unwrap();
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&(json.len() as u64).to_le_bytes());
+        b.extend_from_slice(&json);
+        let crc = crc32fast::hash(&b);
+        b.extend_from_slice(&crc.to_le_bytes());
+        std::fs::write(&p, &b).unwrap();
+        let e = Checkpoint::read(&p).unwrap_err().to_string();
+        assert!(e.contains("array lengths"), "{e}");
+        std::fs::write(&p, &bytes).unwrap();
         // No temporary file is left behind.
         let names: Vec<_> = std::fs::read_dir(p.parent().unwrap())
             .unwrap()
