@@ -33,6 +33,11 @@ pub struct BakeOptions {
     pub checkpoint_every: f64,
     /// Capture size limits.
     pub limits: crate::capture::Limits,
+    /// Also write the same trained state with f32 storage here (for measuring what f16
+    /// storage costs).
+    pub write_f32: Option<PathBuf>,
+    /// `--preset auto`: also write the state just before pruning here.
+    pub write_unpruned: Option<PathBuf>,
 }
 
 /// Final figures of a bake.
@@ -72,6 +77,9 @@ struct Report<'a> {
     records: &'a [Record],
     /// Divergences the training loop recovered from (rollback, halved learning rates).
     recoveries: &'a [crate::train::Recovery],
+    /// `--preset auto`: what was measured and decided.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    auto: Option<&'a crate::auto::AutoReport>,
     summary: &'a Summary,
 }
 
@@ -106,9 +114,15 @@ pub enum BakeError {
     },
 }
 
-/// Runs the whole bake.
-pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError> {
-    let t_start = Instant::now();
+/// A loaded capture with its views rasterised.
+pub(crate) struct Loaded {
+    pub capture: Capture,
+    pub train: Vec<views::View>,
+    pub test: Vec<views::View>,
+}
+
+/// Loads the capture and prepares the views (also sets the thread count).
+pub(crate) fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, BakeError> {
     if cfg.threads > 0 {
         // Ignore the error when a global pool already exists (e.g. in tests).
         let _ = rayon::ThreadPoolBuilder::new()
@@ -124,10 +138,200 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     for w in &capture.warnings {
         eprintln!("dnr-bake: warning: {w}");
     }
-    let train_views = views::prepare(&capture.mesh, &capture.train);
-    let test_views = views::prepare(&capture.mesh, &capture.test);
+    let train = views::prepare(&capture.mesh, &capture.train);
+    let test = views::prepare(&capture.mesh, &capture.test);
+    Ok(Loaded {
+        capture,
+        train,
+        test,
+    })
+}
+
+/// What gets exported: the texture, the SH layer, the network.
+pub(crate) struct ExportParts<'a> {
+    pub pyr: &'a dnr_runtime::texture::Pyramid,
+    pub sh: Option<(u32, u32)>,
+    pub net: &'a export::ExportNet,
+    pub out_ch: usize,
+}
+
+/// Builds and writes an asset atomically; returns its size.
+pub(crate) fn write_asset(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    dtype: dnr_format::model::DType,
+    path: &std::path::Path,
+) -> Result<u64, BakeError> {
+    let builder = export::build(
+        &loaded.capture.mesh,
+        parts.pyr,
+        parts.sh,
+        parts.net,
+        parts.out_ch,
+        dtype,
+    )?;
+    Ok(export::write(&builder, path)?)
+}
+
+/// Held-out error (PSNR, object MSE, SSIM) of a written asset through the runtime.
+pub(crate) fn evaluate_asset(
+    loaded: &Loaded,
+    path: &std::path::Path,
+) -> Result<(f64, f64, f64), BakeError> {
+    if loaded.capture.test.is_empty() {
+        return Ok((f64::NAN, f64::NAN, f64::NAN));
+    }
+    let read_back = |message: String| BakeError::ReadBack {
+        path: path.display().to_string(),
+        message,
+    };
+    let renderer =
+        dnr_runtime::renderer::Renderer::from_path(path).map_err(|e| read_back(e.to_string()))?;
+    let rep = crate::eval::evaluate(&renderer, &loaded.capture.test, None)
+        .map_err(|e| read_back(e.to_string()))?;
+    Ok((rep.mean.psnr, rep.mean.mse_obj, rep.mean.ssim))
+}
+
+/// Everything `finish` reports besides the asset.
+pub(crate) struct Outcome<'a> {
+    /// The configuration trained with.
+    pub config: &'a TrainConfig,
+    pub steps: u64,
+    pub state: RunState,
+    pub auto: Option<&'a crate::auto::AutoReport>,
+}
+
+/// Writes the asset (and the f32 copy if asked), evaluates it, writes the report.
+pub(crate) fn finish(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    outcome: Outcome,
+    opts: &BakeOptions,
+    t_start: Instant,
+) -> Result<Summary, BakeError> {
+    let asset_bytes = write_asset(loaded, parts, dnr_format::model::DType::F16, &opts.output)?;
+    if let Some(p) = &opts.write_f32 {
+        write_asset(loaded, parts, dnr_format::model::DType::F32, p)?;
+    }
+    // The asset is complete: the checkpoint is no longer needed.
+    let ckpt_path = checkpoint::path_for(&opts.output);
+    if let Some(dir) = ckpt_path.parent() {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+    let (test_psnr, test_mse, test_ssim) = evaluate_asset(loaded, &opts.output)?;
+    let records = outcome.state.records;
+    let recoveries = outcome.state.recoveries;
+    let train_seconds = records.last().map_or(0.0, |r| r.seconds);
+    let summary = Summary {
+        test_psnr,
+        test_mse,
+        test_ssim,
+        steps: outcome.steps,
+        seconds: t_start.elapsed().as_secs_f64(),
+        train_seconds,
+        asset_bytes,
+        recoveries: recoveries.len(),
+        records: records.clone(),
+    };
+    if let Some(path) = &opts.report {
+        let rep = Report {
+            config: outcome.config,
+            capture: opts.capture.display().to_string(),
+            mesh: loaded.capture.mesh_path.display().to_string(),
+            train_views: loaded.train.len(),
+            test_views: loaded.test.len(),
+            warnings: &loaded.capture.warnings,
+            records: &records,
+            recoveries: &recoveries,
+            auto: outcome.auto,
+            summary: &summary,
+        };
+        let text = serde_json::to_string_pretty(&rep).expect("report serialises");
+        write_atomic(path, text.as_bytes()).map_err(|source| BakeError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+    }
+    Ok(summary)
+}
+
+/// The progress display of a training run: a bar on a terminal, plain lines otherwise.
+pub(crate) struct Progress {
+    bar: Option<ProgressBar>,
+    enabled: bool,
+    plain: bool,
+    last_psnr: std::cell::Cell<f64>,
+    last_line: std::cell::Cell<f64>,
+    by_time: bool,
+}
+
+impl Progress {
+    pub fn new(enabled: bool, cfg: &TrainConfig) -> Progress {
+        Progress {
+            bar: progress_bar(enabled, cfg),
+            enabled,
+            plain: !std::io::stderr().is_terminal(),
+            last_psnr: std::cell::Cell::new(f64::NAN),
+            last_line: std::cell::Cell::new(0.0),
+            by_time: cfg.time_budget > 0.0,
+        }
+    }
+
+    pub fn on_step(&self, t: &Trainer, secs: f64) {
+        if let Some(b) = &self.bar {
+            b.set_position(if self.by_time { secs as u64 } else { t.step });
+            b.set_message(format!(
+                "step {} | held-out {:.2} dB",
+                t.step,
+                self.last_psnr.get()
+            ));
+        }
+        if self.enabled && self.plain && secs - self.last_line.get() >= 10.0 {
+            self.last_line.set(secs);
+            eprintln!(
+                "step {} | {:.0} s | held-out {:.2} dB",
+                t.step,
+                secs,
+                self.last_psnr.get()
+            );
+        }
+    }
+
+    pub fn on_record(&self, r: &Record) {
+        self.last_psnr.set(r.test_psnr);
+        if self.enabled && self.plain {
+            eprintln!(
+                "eval: step {} | {:.1} s | loss {:.4} | held-out {:.2} dB, object MSE {:.1}",
+                r.step, r.seconds, r.train_loss, r.test_psnr, r.test_mse
+            );
+        }
+    }
+
+    /// Prints a line above the bar (or plainly).
+    pub fn println(&self, line: &str) {
+        match &self.bar {
+            Some(b) => b.println(line),
+            None if self.enabled => eprintln!("{line}"),
+            None => {}
+        }
+    }
+
+    pub fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// Runs the whole bake (`--preset auto` hands over to [`crate::auto::bake`]).
+pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError> {
+    if cfg.preset == crate::train::config::Preset::Auto {
+        return crate::auto::bake(cfg, opts);
+    }
+    let t_start = Instant::now();
+    let loaded = load(cfg, opts)?;
     let t_init = Instant::now();
-    let mut trainer = Trainer::new(cfg.clone(), &train_views)?;
+    let mut trainer = Trainer::new(cfg.clone(), &loaded.train)?;
     // The classical initialisation is part of learning the texture, so it counts against the
     // time budget and shows in the records' seconds (a fair equal-time comparison).
     let init_secs = t_init.elapsed().as_secs_f64();
@@ -159,119 +363,31 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         stop: &stop,
     };
 
-    let bar = progress_bar(opts.progress, cfg);
-    let last_psnr = std::cell::Cell::new(f64::NAN);
-    let mut last_line = 0.0f64;
-    let plain = !std::io::stderr().is_terminal();
+    let progress = Progress::new(opts.progress, cfg);
     train::run(
         &mut trainer,
         &mut state,
-        &train_views,
-        &test_views,
+        &loaded.train,
+        &loaded.test,
         Some(&ckpt),
-        |t, secs| {
-            if let Some(b) = &bar {
-                b.set_position(if cfg.time_budget > 0.0 {
-                    secs as u64
-                } else {
-                    t.step
-                });
-                b.set_message(format!(
-                    "step {} | held-out {:.2} dB",
-                    t.step,
-                    last_psnr.get()
-                ));
-            }
-            if opts.progress && plain && secs - last_line >= 10.0 {
-                last_line = secs;
-                eprintln!(
-                    "step {} | {:.0} s | held-out {:.2} dB",
-                    t.step,
-                    secs,
-                    last_psnr.get()
-                );
-            }
-        },
-        |r| {
-            last_psnr.set(r.test_psnr);
-            if opts.progress && plain {
-                eprintln!(
-                    "eval: step {} | {:.1} s | loss {:.4} | held-out {:.2} dB, object MSE {:.1}",
-                    r.step, r.seconds, r.train_loss, r.test_psnr, r.test_mse
-                );
-            }
-        },
+        |t, secs| progress.on_step(t, secs),
+        |r| progress.on_record(r),
     )?;
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    let records = state.records;
-    let recoveries = state.recoveries;
-
-    let builder = export::build(
-        &capture.mesh,
-        &trainer.pyr,
-        trainer.sh_layer(),
-        &trainer.export_net(),
-        trainer.out_ch,
-        dnr_format::model::DType::F16,
-    )?;
-    let asset_bytes = export::write(&builder, &opts.output)?;
-    // The asset is complete: the checkpoint is no longer needed.
-    if let Some(dir) = ckpt_path.parent() {
-        let _ = std::fs::remove_dir_all(dir);
-    }
-
-    // Held-out error of what was written, through the runtime.
-    let (test_psnr, test_mse, test_ssim) = if capture.test.is_empty() {
-        (f64::NAN, f64::NAN, f64::NAN)
-    } else {
-        let renderer = dnr_runtime::renderer::Renderer::from_path(&opts.output).map_err(|e| {
-            BakeError::ReadBack {
-                path: opts.output.display().to_string(),
-                message: e.to_string(),
-            }
-        })?;
-        let rep = crate::eval::evaluate(&renderer, &capture.test, None).map_err(|e| {
-            BakeError::ReadBack {
-                path: opts.output.display().to_string(),
-                message: e.to_string(),
-            }
-        })?;
-        (rep.mean.psnr, rep.mean.mse_obj, rep.mean.ssim)
+    progress.finish();
+    let net = trainer.export_net();
+    let parts = ExportParts {
+        pyr: &trainer.pyr,
+        sh: trainer.sh_layer(),
+        net: &net,
+        out_ch: trainer.out_ch,
     };
-    let train_seconds = records.last().map_or(0.0, |r| r.seconds);
-    let summary = Summary {
-        test_psnr,
-        test_mse,
-        test_ssim,
+    let outcome = Outcome {
+        config: &trainer.cfg,
         steps: trainer.step,
-        seconds: t_start.elapsed().as_secs_f64(),
-        train_seconds,
-        asset_bytes,
-        recoveries: recoveries.len(),
-        records: records.clone(),
+        state,
+        auto: None,
     };
-    if let Some(path) = &opts.report {
-        let rep = Report {
-            // The configuration trained with (recoveries lower the learning rates).
-            config: &trainer.cfg,
-            capture: opts.capture.display().to_string(),
-            mesh: capture.mesh_path.display().to_string(),
-            train_views: train_views.len(),
-            test_views: test_views.len(),
-            warnings: &capture.warnings,
-            records: &records,
-            recoveries: &recoveries,
-            summary: &summary,
-        };
-        let text = serde_json::to_string_pretty(&rep).expect("report serialises");
-        write_atomic(path, text.as_bytes()).map_err(|source| BakeError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-    }
-    Ok(summary)
+    finish(&loaded, &parts, outcome, opts, t_start)
 }
 
 fn progress_bar(enabled: bool, cfg: &TrainConfig) -> Option<ProgressBar> {

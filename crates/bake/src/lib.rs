@@ -3,6 +3,7 @@
 //!
 //! Uses the runtime's forward kernels so what it optimises is what the runtime draws.
 
+pub mod auto;
 pub mod bake;
 pub mod bench;
 pub mod capture;

@@ -26,7 +26,10 @@ struct Args {
     #[arg(short, long)]
     output: PathBuf,
     /// Starting point: fast (CPU-sized, minutes), balanced (default), quality, paper
-    /// (the paper's sizes: 512x512, 4 levels, 16 channels, U-Net 64..512).
+    /// (the paper's sizes: 512x512, 4 levels, 16 channels, U-Net 64..512), or auto: measure
+    /// and decide within --time-budget (default 600 s) whether the scene needs the SH layer,
+    /// which network and texture size the budget affords, which levels and channels are
+    /// worth their bytes; the --report lists every decision with what it cost and saved.
     #[arg(long, default_value = "balanced")]
     preset: Preset,
     /// Proxy mesh (.glb/.gltf/.obj/.ply) instead of the capture's.
@@ -81,6 +84,13 @@ struct Args {
     /// Seconds between checkpoints (also written on Ctrl-C).
     #[arg(long, default_value_t = 30.0)]
     checkpoint_every: f64,
+    /// Also write the same trained state with f32 storage (to measure what f16 costs with
+    /// `dnr bench render ASSET --against F32_ASSET`).
+    #[arg(long, value_name = "PATH")]
+    write_f32: Option<PathBuf>,
+    /// With --preset auto: also write the state just before pruning.
+    #[arg(long, value_name = "PATH")]
+    write_unpruned: Option<PathBuf>,
     /// Print the final figures as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -140,6 +150,21 @@ fn config(a: &Args) -> TrainConfig {
 }
 
 fn run(a: Args) -> Result<()> {
+    if a.preset == Preset::Auto {
+        let decided = [
+            ("--resolution", a.resolution.is_some()),
+            ("--levels", a.levels.is_some()),
+            ("--no-sh", a.no_sh),
+            ("--arch", a.arch.is_some()),
+            ("--widths", a.widths.is_some()),
+            ("--steps", a.steps.is_some()),
+        ];
+        if let Some((flag, _)) = decided.iter().find(|d| d.1) {
+            anyhow::bail!("{flag} cannot be combined with --preset auto, which decides it by measurement (pick a fixed preset to set it)");
+        }
+    } else if a.write_unpruned.is_some() {
+        anyhow::bail!("--write-unpruned needs --preset auto");
+    }
     let cfg = config(&a);
     let mut limits = dnr_bake::capture::Limits::default();
     for spec in &a.limits {
@@ -156,6 +181,8 @@ fn run(a: Args) -> Result<()> {
         resume: a.resume,
         progress: true,
         checkpoint_every: a.checkpoint_every,
+        write_f32: a.write_f32.clone(),
+        write_unpruned: a.write_unpruned.clone(),
     };
     let summary = bake(&cfg, &opts).with_context(|| format!("baking {}", a.capture.display()))?;
     if a.json {

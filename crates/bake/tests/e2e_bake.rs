@@ -233,3 +233,94 @@ fn sigkill_and_resume_reaches_the_straight_result() {
         "resumed asset differs from the straight run"
     );
 }
+
+#[path = "capture_common/mod.rs"]
+mod capture_common;
+
+/// Runs an auto bake of `capture` and returns its report.
+fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
+    let out = dir.join("auto.glb");
+    let report = dir.join("auto.json");
+    let o = Command::new(bin())
+        .arg(capture)
+        .arg("-o")
+        .arg(&out)
+        .args([
+            "--preset",
+            "auto",
+            "--time-budget",
+            budget,
+            "--threads",
+            "2",
+        ])
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .expect("run dnr-bake");
+    assert!(
+        o.status.success(),
+        "dnr-bake --preset auto failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&report).unwrap()).expect("report JSON");
+    // What the report says matches the asset: SH extension data only when kept.
+    let asset = dnr_format::asset::read_asset(&out).expect("the asset reads back");
+    let ext = asset.extension.expect("the extension");
+    let has_sh = ext.neural_textures[0].view_dependence.is_some();
+    let a = &r["auto"];
+    let sh_kept = a["viewDependence"]["viewDependent"].as_bool().unwrap()
+        && !a["textureOnly"].as_bool().unwrap();
+    assert_eq!(
+        has_sh, sh_kept,
+        "report and asset disagree on the SH layer: {a}"
+    );
+    r
+}
+
+#[test]
+fn auto_drops_sh_for_a_diffuse_capture_and_keeps_it_for_highlights() {
+    let dir = tempfile::tempdir().unwrap();
+    // Diffuse: the sample sphere's views repainted without a highlight (exact proxy).
+    let diffuse = dir.path().join("diffuse");
+    capture_common::shaded_sphere_capture(&diffuse, 0.0);
+    // Highlights: the bundled sample, ray traced with a Blinn-Phong highlight that moves with
+    // the camera, on an imperfect proxy (examples/make_capture.rs).
+    let glossy = capture_common::sample_capture();
+    for (cap, keep, budget) in [(&diffuse, false, "10"), (&glossy, true, "15")] {
+        let out = tempfile::tempdir().unwrap();
+        let r = auto_report(cap, budget, out.path());
+        let a = &r["auto"];
+        assert_eq!(
+            a["viewDependence"]["viewDependent"].as_bool(),
+            Some(keep),
+            "{}: {}",
+            cap.display(),
+            a["viewDependence"]
+        );
+        assert_eq!(r["config"]["sh"].as_bool(), Some(keep));
+        if keep {
+            // Moving highlights are what a texture alone cannot hold: the network must stay.
+            assert_eq!(a["textureOnly"].as_bool(), Some(false), "{a}");
+        }
+        // Every decision is listed with its measurement.
+        let decisions = a["decisions"].as_array().unwrap();
+        assert!(decisions.len() >= 4, "{decisions:?}");
+        assert!(decisions
+            .iter()
+            .all(|d| d["why"].as_str().is_some_and(|w| !w.is_empty())));
+        // Pruning never grows the asset beyond compression noise (fine-tuning changes the
+        // values, so the same layout can compress a little differently), and the error is
+        // a real number.
+        let (pruned, unpruned) = (
+            a["prunedBytes"].as_u64().unwrap() as f64,
+            a["unprunedBytes"].as_u64().unwrap() as f64,
+        );
+        assert!(pruned <= 1.02 * unpruned, "{pruned} > {unpruned}");
+        assert!(
+            r["summary"]["testPsnr"].as_f64().unwrap() > 20.0,
+            "{}",
+            r["summary"]
+        );
+    }
+}

@@ -44,7 +44,14 @@ pub enum Preset {
     Quality,
     /// The paper's exact sizes: 512x512, 4 levels, 16 channels, U-Net 64..512.
     Paper,
+    /// Measure the scene and the machine, then decide: SH layer or not, network size,
+    /// pyramid levels and channels, unseen texels (see `dnr_bake::auto`). Needs a time
+    /// budget (default [`AUTO_DEFAULT_BUDGET`] seconds).
+    Auto,
 }
+
+/// Seconds `--preset auto` trains for when no `--time-budget` is given.
+pub const AUTO_DEFAULT_BUDGET: f64 = 600.0;
 
 impl std::str::FromStr for Preset {
     type Err = String;
@@ -54,8 +61,9 @@ impl std::str::FromStr for Preset {
             "balanced" => Ok(Preset::Balanced),
             "quality" => Ok(Preset::Quality),
             "paper" => Ok(Preset::Paper),
+            "auto" => Ok(Preset::Auto),
             _ => Err(format!(
-                "unknown preset '{s}' (expected fast, balanced, quality or paper)"
+                "unknown preset '{s}' (expected auto, fast, balanced, quality or paper)"
             )),
         }
     }
@@ -146,6 +154,13 @@ impl TrainConfig {
                 widths: vec![64, 128, 256, 512, 512],
                 alpha: false,
                 steps: 60_000,
+                ..base
+            },
+            // The budget ends an auto bake, not a step count; the sizes here are the largest
+            // rung auto may choose (see `dnr_bake::auto::RUNGS`).
+            Preset::Auto => TrainConfig {
+                steps: 10_000_000,
+                time_budget: AUTO_DEFAULT_BUDGET,
                 ..base
             },
         }

@@ -150,6 +150,8 @@ pub struct Trainer {
     pub step: u64,
     loss_sum: f64,
     loss_n: u64,
+    /// Channels pruned by `--preset auto`: held at zero in every level after each step.
+    zero_channels: Vec<usize>,
 }
 
 fn mlp_params(cfg: &TrainConfig, out_ch: usize) -> MlpParams {
@@ -251,7 +253,64 @@ impl Trainer {
             step: 0,
             loss_sum: 0.0,
             loss_n: 0,
+            zero_channels: Vec::new(),
         })
+    }
+
+    /// Removes pyramid level `k` (and its optimiser state): the renderer then sees the sum of
+    /// the other levels. Used by pruning; the regularisation follows the new level indices.
+    pub fn remove_level(&mut self, k: usize) {
+        if k < self.pyr.levels.len() && self.pyr.levels.len() > 1 {
+            self.pyr.levels.remove(k);
+            self.tex_adam.remove(k);
+        }
+    }
+
+    /// Holds `channels` at zero in every level from now on (zeroed now and after each step),
+    /// so an export can drop them without changing a pixel.
+    pub fn freeze_zero_channels(&mut self, channels: &[usize]) {
+        for &c in channels {
+            if c < self.pyr.channels && !self.zero_channels.contains(&c) {
+                self.zero_channels.push(c);
+            }
+        }
+        self.zero_frozen();
+    }
+
+    /// Channels held at zero.
+    pub fn zero_channels(&self) -> &[usize] {
+        &self.zero_channels
+    }
+
+    fn zero_frozen(&mut self) {
+        if self.zero_channels.is_empty() {
+            return;
+        }
+        let c = self.pyr.channels;
+        for l in &mut self.pyr.levels {
+            for texel in l.data.chunks_exact_mut(c) {
+                for &z in &self.zero_channels {
+                    texel[z] = 0.0;
+                }
+            }
+        }
+    }
+
+    /// Sets every channel of the texels no training pixel touches (`touched[k][texel]` false)
+    /// to zero. Training never updates them (the texture optimiser is sparse), so they stay
+    /// zero and compress to almost nothing.
+    pub fn zero_untouched(&mut self, touched: &[Vec<bool>]) -> usize {
+        let c = self.pyr.channels;
+        let mut zeroed = 0;
+        for (l, t) in self.pyr.levels.iter_mut().zip(touched) {
+            for (texel, &seen) in l.data.chunks_exact_mut(c).zip(t) {
+                if !seen {
+                    texel.fill(0.0);
+                    zeroed += 1;
+                }
+            }
+        }
+        zeroed
     }
 
     fn sh(&self) -> Option<(u32, u32)> {
@@ -425,6 +484,7 @@ impl Trainer {
                 a.step_zero_grad(wt, g);
             }
         }
+        self.zero_frozen();
         self.step += 1;
         self.loss_sum += loss;
         self.loss_n += 1;
@@ -476,8 +536,24 @@ impl Trainer {
 
     /// Renders whole views with the runtime's forward (f32 weights) and measures them.
     pub fn evaluate(&self, views: &[View]) -> Result<Vec<ViewError>, TrainError> {
+        self.evaluate_as(views, false)
+    }
+
+    /// Renders whole views as a texture-only asset would (channels 0..2 as the colour, the
+    /// proxy's coverage as alpha), whatever the network: right after [`Trainer::new`] this is
+    /// the classical texture's error.
+    pub fn evaluate_texture_only(&self, views: &[View]) -> Result<Vec<ViewError>, TrainError> {
+        self.evaluate_as(views, true)
+    }
+
+    fn evaluate_as(
+        &self,
+        views: &[View],
+        texture_only: bool,
+    ) -> Result<Vec<ViewError>, TrainError> {
         let kerr = |e: &dyn std::fmt::Display| TrainError::Kernel(e.to_string());
         let runtime = match &self.net {
+            _ if texture_only => EvalNet::None,
             Net::Unet { net, .. } => EvalNet::Unet(
                 UNet::from_map(net.params.clone(), &net.to_map()).map_err(|e| kerr(&e))?,
             ),

@@ -103,3 +103,63 @@ pub fn edit_json(path: &Path, f: impl FnOnce(&mut Value)) {
     f(&mut v);
     write_json(path, &v);
 }
+
+/// The bundled sample capture (a glossy sphere, 48 + 12 views of 128x128).
+pub fn sample_capture() -> PathBuf {
+    PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../samples/capture"
+    ))
+}
+
+/// Copies the sample capture to `dir` and repaints every image analytically from the proxy
+/// sphere's G-buffer: a checker albedo under a fixed directional light, plus a white
+/// Blinn-Phong highlight of strength `specular` (0 = perfectly diffuse). The proxy is then
+/// exact, and whether the images depend on the view is known by construction.
+pub fn shaded_sphere_capture(dir: &Path, specular: f32) {
+    let src = sample_capture();
+    copy_dir(&src, dir);
+    let cap = dnr_bake::capture::Capture::load(dir, &Default::default()).unwrap();
+    let light = glam::Vec3::new(0.55, 0.75, 0.45).normalize();
+    for f in cap.train.iter().chain(&cap.test) {
+        let g = dnr_runtime::raster::rasterize(&cap.mesh, &f.camera);
+        let (w, h) = (g.width as u32, g.height as u32);
+        write_png_rgba(&f.image_path, w, h, |x, y| {
+            let i = (y * w + x) as usize;
+            if g.coverage[i] == 0.0 {
+                return [0, 0, 0, 0];
+            }
+            let [u, v] = g.uv[i];
+            // The proxy's uv parameterisation (see examples/make_capture.rs).
+            let (th, ph) = (v * std::f32::consts::PI, u * 2.0 * std::f32::consts::PI);
+            let n = glam::Vec3::new(th.sin() * ph.cos(), th.cos(), -th.sin() * ph.sin());
+            let cell = ((u * 8.0).floor() as i32 + (v * 4.0).floor() as i32) % 2;
+            let albedo = if cell == 0 {
+                glam::Vec3::new(0.8, 0.3, 0.1)
+            } else {
+                glam::Vec3::new(0.1, 0.4, 0.7)
+            };
+            let k = 0.2 + 0.8 * n.dot(light).max(0.0);
+            let to_eye = -glam::Vec3::from(g.view_dir[i]);
+            let half = (light + to_eye).normalize_or_zero();
+            let spec = specular * n.dot(half).max(0.0).powf(40.0);
+            let c = albedo * k + glam::Vec3::splat(spec);
+            let q = |t: f32| (t.clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8;
+            [q(c.x), q(c.y), q(c.z), 255]
+        });
+    }
+}
+
+/// Copies a folder tree.
+pub fn copy_dir(src: &Path, dst: &Path) {
+    std::fs::create_dir_all(dst).unwrap();
+    for e in std::fs::read_dir(src).unwrap() {
+        let e = e.unwrap();
+        let to = dst.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to);
+        } else {
+            std::fs::copy(e.path(), &to).unwrap();
+        }
+    }
+}

@@ -42,16 +42,18 @@ enum What {
     /// configuration with the largest budget, evaluated along the way; writes a JSON table
     /// and a PNG plot (PSNR against log seconds, one curve per configuration).
     ///
-    /// Configurations: the presets fast, balanced, quality, paper, and the baselines
+    /// Configurations: the presets auto, fast, balanced, quality, paper, and the baselines
     /// classical (mean-colour texture, no learning), texture (learned texture only), mlp,
-    /// unet-nosh (no SH layer), unet-1level (no pyramid), all built on balanced.
+    /// unet-nosh (no SH layer), unet-1level (no pyramid), all built on balanced. auto's
+    /// decisions depend on the budget, so it bakes once per budget and is measured by each
+    /// exported asset.
     ///
     /// Example: dnr bench bake capture/ --budgets 60,180,600 --out bench/
     Bake {
         /// Capture folder.
         capture: PathBuf,
         /// Presets (or any configuration names) to run.
-        #[arg(long, value_delimiter = ',', default_value = "fast,balanced")]
+        #[arg(long, value_delimiter = ',', default_value = "auto,fast,balanced")]
         presets: Vec<String>,
         /// Leave out the baselines (classical, texture, mlp, unet-nosh, unet-1level).
         #[arg(long)]
@@ -79,6 +81,11 @@ enum What {
         /// Timed repetitions per size.
         #[arg(long, default_value_t = 5)]
         reps: usize,
+        /// Reference assets (repeatable), e.g. the f32-storage or the unpruned asset of the
+        /// same bake (`dnr-bake --write-f32 / --write-unpruned`): reports the error of
+        /// ASSET's renders against each reference's, from four cameras around the object.
+        #[arg(long, value_name = "REFERENCE")]
+        against: Vec<PathBuf>,
     },
 }
 
@@ -91,7 +98,12 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             peer,
             json,
         } => train(*reps, torch.as_ref(), peer, json.as_ref()),
-        What::Render { asset, sizes, reps } => render(asset, sizes, *reps),
+        What::Render {
+            asset,
+            sizes,
+            reps,
+            against,
+        } => render(asset, sizes, *reps, against),
         What::Bake {
             capture,
             presets,
@@ -221,15 +233,20 @@ fn train(
     Ok(ExitCode::SUCCESS)
 }
 
-fn render(asset: &PathBuf, sizes: &[u32], reps: usize) -> Result<ExitCode> {
+fn render(asset: &PathBuf, sizes: &[u32], reps: usize, against: &[PathBuf]) -> Result<ExitCode> {
     let r = Renderer::from_path(asset).with_context(|| asset.display().to_string())?;
     // The same renderer evaluating every U-Net position (no receptive-field skipping).
     let mut full = r.clone();
     full.set_skip_uncovered(false);
+    let camera = |s: u32, k: usize| {
+        let a = k as f32 * std::f32::consts::FRAC_PI_2;
+        let eye = glam::Vec3::new(3.4 * a.sin(), 1.2, 3.4 * a.cos());
+        Camera::look_at(eye, glam::Vec3::ZERO, 40.0, s, s)
+    };
     println!("| size | ms per frame (min) | ms (median) | ms without skipping (min) |");
     println!("| ---: | ---: | ---: | ---: |");
     for &s in sizes {
-        let cam = Camera::look_at(glam::Vec3::new(0.0, 1.2, 3.4), glam::Vec3::ZERO, 40.0, s, s);
+        let cam = camera(s, 0);
         let (min, med) = dnr_bake::bench::time_min_median(reps, || {
             std::hint::black_box(r.render(&cam, s, s).expect("render"));
         });
@@ -242,6 +259,45 @@ fn render(asset: &PathBuf, sizes: &[u32], reps: usize) -> Result<ExitCode> {
             1e3 * med,
             1e3 * full_min
         );
+    }
+    if !against.is_empty() {
+        println!();
+        println!("| reference | size | PSNR of ASSET against it (dB, float, on white) | max abs difference | reference ms (min) |");
+        println!("| --- | ---: | ---: | ---: | ---: |");
+    }
+    for reference in against {
+        let q = Renderer::from_path(reference).with_context(|| reference.display().to_string())?;
+        for &s in sizes {
+            let (mut se, mut n, mut max_abs) = (0.0f64, 0usize, 0.0f32);
+            for k in 0..4 {
+                let cam = camera(s, k);
+                let a = r
+                    .render(&cam, s, s)
+                    .with_context(|| asset.display().to_string())?;
+                let b = q
+                    .render(&cam, s, s)
+                    .with_context(|| reference.display().to_string())?;
+                for (pa, pb) in a.data.chunks_exact(4).zip(b.data.chunks_exact(4)) {
+                    for c in 0..3 {
+                        let on_white = |p: &[f32]| p[c] * p[3] + (1.0 - p[3]);
+                        let d = on_white(pa) - on_white(pb);
+                        se += (d as f64) * (d as f64);
+                        max_abs = max_abs.max(d.abs());
+                    }
+                    n += 3;
+                }
+            }
+            let psnr = 10.0 * (1.0 / (se / n.max(1) as f64)).log10();
+            let cam = camera(s, 0);
+            let (q_min, _) = dnr_bake::bench::time_min_median(reps, || {
+                std::hint::black_box(q.render(&cam, s, s).expect("render"));
+            });
+            println!(
+                "| {} | {s} | {psnr:.2} | {max_abs:.2e} | {:.1} |",
+                reference.display(),
+                1e3 * q_min
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

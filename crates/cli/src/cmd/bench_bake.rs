@@ -7,6 +7,12 @@
 //! bake with `--time-budget B` would have reached; a configuration whose step limit ends it
 //! earlier keeps its final figures at later budgets. Seconds count the initialisation
 //! (classical texturing) and exclude evaluation, as `dnr-bake` reports them.
+//!
+//! `auto` decides by the budget, so it bakes once per budget and each cell is its exported
+//! asset's held-out error through the runtime (f16 storage included); the other cells are
+//! the training state's evaluations (f32), which the runs' `finalPsnr` (f16 asset) checks.
+//! Every bake also writes `NAME.f32.glb` (same state, f32 storage) and auto
+//! `auto-B.unpruned.glb`, the references for `dnr bench render --against`.
 
 use std::path::{Path, PathBuf};
 
@@ -40,7 +46,7 @@ pub struct Plan<'a> {
 /// texture only, the per-pixel MLP, and the U-Net without SH and without the pyramid.
 pub const BASELINES: [&str; 5] = ["classical", "texture", "mlp", "unet-nosh", "unet-1level"];
 
-/// The configuration a name stands for: a preset (`fast`, `balanced`, `quality`, `paper`) or
+/// The configuration a name stands for: a preset (`auto`, `fast`, `balanced`, `quality`, `paper`) or
 /// a baseline built on `balanced` (`classical`: the mean-colour texture of the training pixels,
 /// no learning; `texture`: learned texture, architecture `none`; `mlp`: per-pixel MLP 64,64;
 /// `unet-nosh`: no SH layer; `unet-1level`: a single texture level, no pyramid).
@@ -51,6 +57,7 @@ pub fn config(name: &str) -> Result<TrainConfig> {
         "balanced" => balanced,
         "quality" => TrainConfig::preset(Preset::Quality),
         "paper" => TrainConfig::preset(Preset::Paper),
+        "auto" => TrainConfig::preset(Preset::Auto),
         "classical" => TrainConfig {
             arch: Arch::None,
             steps: 0,
@@ -74,7 +81,7 @@ pub fn config(name: &str) -> Result<TrainConfig> {
             ..balanced
         },
         other => bail!(
-            "unknown configuration `{other}` (presets: fast, balanced, quality, paper; baselines: {})",
+            "unknown configuration `{other}` (presets: auto, fast, balanced, quality, paper; baselines: {})",
             BASELINES.join(", ")
         ),
     })
@@ -97,6 +104,9 @@ pub struct Cell {
     pub psnr: f64,
     /// Held-out MSE on [0,255] over object pixels.
     pub mse: f64,
+    /// For configurations baked once per budget (auto): that bake's asset size.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub asset_bytes: Option<u64>,
 }
 
 /// One configuration's run.
@@ -121,6 +131,9 @@ pub struct Run {
 pub struct Table {
     /// Capture folder.
     pub capture: String,
+    /// Proxy mesh given with `--mesh` (else the capture's own).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
     /// Budgets in seconds.
     pub budgets: Vec<f64>,
     /// One cell per configuration and budget.
@@ -154,48 +167,96 @@ pub fn run(plan: &Plan<'_>) -> Result<Table> {
         .with_context(|| format!("cannot create {}", plan.out.display()))?;
     let mut table = Table {
         capture: plan.capture.display().to_string(),
+        mesh: plan.mesh.map(|m| m.display().to_string()),
         budgets: plan.budgets.clone(),
         cells: Vec::new(),
         runs: Vec::new(),
     };
     for (name, mut cfg) in configs {
-        cfg.time_budget = max_budget;
         cfg.eval_every = (min_budget / 2.0).min(30.0);
         cfg.threads = plan.threads;
-        let output = plan.out.join(format!("{name}.glb"));
-        eprintln!(
-            "dnr bench bake: {name} for up to {max_budget} s -> {}",
-            output.display()
-        );
-        let opts = BakeOptions {
-            capture: plan.capture.to_path_buf(),
-            output: output.clone(),
-            mesh: plan.mesh.map(Path::to_path_buf),
-            report: Some(plan.out.join(format!("{name}.json"))),
-            resume: false,
-            progress: true,
-            checkpoint_every: 1e9,
-            limits: Default::default(),
+        // Auto's decisions depend on the budget: one bake per budget, each measured by its
+        // exported asset. Every other configuration bakes once with the largest budget.
+        let per_budget = cfg.preset == Preset::Auto;
+        let bakes: Vec<f64> = if per_budget {
+            plan.budgets.clone()
+        } else {
+            vec![max_budget]
         };
-        let summary = bake(&cfg, &opts).with_context(|| format!("baking `{name}`"))?;
-        for &b in &plan.budgets {
-            if let Some(r) = at_budget(&summary.records, b) {
+        let mut auto_points = Vec::new();
+        let mut last = None;
+        for budget in bakes {
+            cfg.time_budget = budget;
+            let stem = if per_budget {
+                format!("{name}-{budget}")
+            } else {
+                name.clone()
+            };
+            let output = plan.out.join(format!("{stem}.glb"));
+            eprintln!(
+                "dnr bench bake: {name} for up to {budget} s -> {}",
+                output.display()
+            );
+            let opts = BakeOptions {
+                capture: plan.capture.to_path_buf(),
+                output: output.clone(),
+                mesh: plan.mesh.map(Path::to_path_buf),
+                report: Some(plan.out.join(format!("{stem}.json"))),
+                resume: false,
+                progress: true,
+                checkpoint_every: 1e9,
+                limits: Default::default(),
+                // The same state with f32 storage, and auto's state before pruning, for
+                // `dnr bench render ASSET --against REFERENCE`.
+                write_f32: Some(plan.out.join(format!("{stem}.f32.glb"))),
+                write_unpruned: per_budget.then(|| plan.out.join(format!("{stem}.unpruned.glb"))),
+            };
+            let summary = bake(&cfg, &opts).with_context(|| format!("baking `{stem}`"))?;
+            if per_budget {
                 table.cells.push(Cell {
                     config: name.clone(),
-                    budget: b,
-                    seconds: r.seconds,
-                    step: r.step,
-                    psnr: r.test_psnr,
-                    mse: r.test_mse,
+                    budget,
+                    seconds: summary.train_seconds,
+                    step: summary.steps,
+                    psnr: summary.test_psnr,
+                    mse: summary.test_mse,
+                    asset_bytes: Some(summary.asset_bytes),
                 });
+                auto_points.push(Record {
+                    step: summary.steps,
+                    seconds: summary.train_seconds,
+                    train_loss: f64::NAN,
+                    test_psnr: summary.test_psnr,
+                    test_mse: summary.test_mse,
+                });
+            } else {
+                for &b in &plan.budgets {
+                    if let Some(r) = at_budget(&summary.records, b) {
+                        table.cells.push(Cell {
+                            config: name.clone(),
+                            budget: b,
+                            seconds: r.seconds,
+                            step: r.step,
+                            psnr: r.test_psnr,
+                            mse: r.test_mse,
+                            asset_bytes: None,
+                        });
+                    }
+                }
             }
+            last = Some((output, summary));
         }
+        let (output, summary) = last.expect("at least one budget");
         table.runs.push(Run {
             config: name,
             asset: output.display().to_string(),
             asset_bytes: summary.asset_bytes,
             final_psnr: summary.test_psnr,
-            records: summary.records,
+            records: if per_budget {
+                auto_points
+            } else {
+                summary.records
+            },
         });
     }
     let text = serde_json::to_string_pretty(&table)?;
@@ -278,7 +339,13 @@ pub fn plot(t: &Table) -> Result<Vec<u8>> {
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let mut chart = ChartBuilder::on(&root)
             .caption(
-                format!("held-out PSNR against bake seconds: {}", t.capture),
+                match &t.mesh {
+                    Some(m) => format!(
+                        "held-out PSNR against bake seconds: {} (proxy {m})",
+                        t.capture
+                    ),
+                    None => format!("held-out PSNR against bake seconds: {}", t.capture),
+                },
                 ("sans-serif", 20),
             )
             .margin(15)
@@ -449,11 +516,13 @@ mod tests {
                     step: r.step,
                     psnr: r.test_psnr,
                     mse: r.test_mse,
+                    asset_bytes: None,
                 });
             }
         }
         let t = Table {
             capture: "cap".into(),
+            mesh: None,
             budgets: vec![60.0, 180.0, 600.0],
             cells,
             runs,

@@ -1,0 +1,239 @@
+//! A cheap test of view dependence on the training images, before any training: does a
+//! surface point's colour change with the direction it is seen from?
+//!
+//! Every interior object pixel is an observation `(texel, view direction, colour)`. Per texel
+//! of a coarse uv grid, the colours are fitted by least squares with the degree-2 SH basis of
+//! the view direction (the 9 functions the SH layer multiplies by; the first is the constant).
+//! The part of the within-texel variance the basis explains, beyond what 8 free coefficients
+//! explain in pure noise (`(p - 1) / (n - 1)` of it for `n` observations), is view-dependent
+//! signal: highlights move with the camera, noise and sub-texel detail do not follow the
+//! direction. The statistic is that excess, pooled over texels, as a fraction of the pooled
+//! within-texel variance.
+
+use serde::Serialize;
+
+use super::super::train::views::View;
+
+/// Side of the uv grid the observations are binned into.
+pub const GRID: usize = 64;
+/// Observations a texel needs to take part (enough for 9 coefficients to mean something).
+pub const MIN_OBSERVATIONS: usize = 24;
+/// Excess explained fraction above which the scene counts as view dependent.
+pub const THRESHOLD: f64 = 0.08;
+
+const P: usize = 9;
+
+/// What the test measured.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct ViewDependence {
+    /// Excess fraction of the within-texel colour variance explained by the view direction.
+    pub excess_explained: f64,
+    /// Within-texel variance as a fraction of the total colour variance of the observations
+    /// (how much of the image is not a fixed texture colour at all).
+    pub within_texel_fraction: f64,
+    /// Texels with enough observations.
+    pub texels: usize,
+    /// Observations used.
+    pub observations: usize,
+    /// The threshold the decision used ([`THRESHOLD`]).
+    pub threshold: f64,
+    /// The decision: keep the SH layer.
+    pub view_dependent: bool,
+}
+
+#[derive(Clone)]
+struct Acc {
+    n: usize,
+    /// Upper triangle of `sum b b^T`.
+    bb: [f64; P * P],
+    /// `sum b y^T`, 9 x 3.
+    by: [f64; P * 3],
+    y: [f64; 3],
+    yy: [f64; 3],
+}
+
+impl Default for Acc {
+    fn default() -> Self {
+        Acc {
+            n: 0,
+            bb: [0.0; P * P],
+            by: [0.0; P * 3],
+            y: [0.0; 3],
+            yy: [0.0; 3],
+        }
+    }
+}
+
+/// Runs the test on the training views (wrap-around uvs are folded into the unit square).
+pub fn measure(views: &[View]) -> ViewDependence {
+    let mut acc = vec![Acc::default(); GRID * GRID];
+    let mut b = [0.0f32; P];
+    for v in views {
+        let n = v.width() * v.height();
+        for i in 0..n {
+            // Interior object pixels only: silhouettes mix in the background.
+            if v.gbuf.coverage[i] == 0.0 || v.alpha[i] < 0.99 {
+                continue;
+            }
+            let [u, t] = v.gbuf.uv[i];
+            let d = v.gbuf.view_dir[i];
+            if !(u.is_finite() && t.is_finite()) || d == [0.0; 3] {
+                continue;
+            }
+            let gx = ((u.rem_euclid(1.0) * GRID as f32) as usize).min(GRID - 1);
+            let gy = ((t.rem_euclid(1.0) * GRID as f32) as usize).min(GRID - 1);
+            dnr_runtime::sh::sh_basis(2, d, &mut b);
+            let a = &mut acc[gy * GRID + gx];
+            a.n += 1;
+            for r in 0..P {
+                for c in r..P {
+                    a.bb[r * P + c] += (b[r] * b[c]) as f64;
+                }
+            }
+            for c in 0..3 {
+                let y = v.target[c * n + i] as f64;
+                a.y[c] += y;
+                a.yy[c] += y * y;
+                for (r, &br) in b.iter().enumerate() {
+                    a.by[r * 3 + c] += br as f64 * y;
+                }
+            }
+        }
+    }
+    let (mut within, mut excess, mut texels, mut obs) = (0.0f64, 0.0f64, 0usize, 0usize);
+    let (mut all_n, mut all_y, mut all_yy) = (0usize, [0.0f64; 3], [0.0f64; 3]);
+    for a in &acc {
+        all_n += a.n;
+        for c in 0..3 {
+            all_y[c] += a.y[c];
+            all_yy[c] += a.yy[c];
+        }
+        if a.n < MIN_OBSERVATIONS {
+            continue;
+        }
+        let nf = a.n as f64;
+        let ss_tot: f64 = (0..3).map(|c| a.yy[c] - a.y[c] * a.y[c] / nf).sum();
+        let Some(beta) = solve(&a.bb, &a.by) else {
+            continue;
+        };
+        // For least squares with a constant in the basis: explained = b^T y . beta - n ybar^2.
+        let fitted: f64 = (0..3)
+            .map(|c| {
+                (0..P)
+                    .map(|r| beta[r * 3 + c] * a.by[r * 3 + c])
+                    .sum::<f64>()
+                    - a.y[c] * a.y[c] / nf
+            })
+            .sum();
+        let explained = fitted.clamp(0.0, ss_tot.max(0.0));
+        let chance = ss_tot.max(0.0) * (P - 1) as f64 / (nf - 1.0);
+        within += ss_tot.max(0.0);
+        excess += explained - chance;
+        texels += 1;
+        obs += a.n;
+    }
+    let total: f64 = (0..3)
+        .map(|c| all_yy[c] - all_y[c] * all_y[c] / all_n.max(1) as f64)
+        .sum();
+    let excess_explained = if within > 0.0 { excess / within } else { 0.0 };
+    ViewDependence {
+        excess_explained,
+        within_texel_fraction: if total > 0.0 { within / total } else { 0.0 },
+        texels,
+        observations: obs,
+        threshold: THRESHOLD,
+        view_dependent: excess_explained > THRESHOLD,
+    }
+}
+
+/// Solves `A beta = B` (A symmetric 9x9 given by its upper triangle, B 9x3) by Cholesky with
+/// a small ridge (directions that cover only part of the sphere make A near singular).
+fn solve(bb: &[f64; P * P], by: &[f64; P * 3]) -> Option<[f64; P * 3]> {
+    let mut a = [0.0f64; P * P];
+    let trace: f64 = (0..P).map(|i| bb[i * P + i]).sum();
+    let ridge = 1e-6 * trace / P as f64;
+    for r in 0..P {
+        for c in r..P {
+            a[r * P + c] = bb[r * P + c];
+            a[c * P + r] = bb[r * P + c];
+        }
+        a[r * P + r] += ridge;
+    }
+    // In-place Cholesky: lower triangle L with A = L L^T.
+    for j in 0..P {
+        let mut d = a[j * P + j];
+        for k in 0..j {
+            d -= a[j * P + k] * a[j * P + k];
+        }
+        if d <= 0.0 || !d.is_finite() {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * P + j] = d;
+        for i in j + 1..P {
+            let mut s = a[i * P + j];
+            for k in 0..j {
+                s -= a[i * P + k] * a[j * P + k];
+            }
+            a[i * P + j] = s / d;
+        }
+    }
+    let mut x = *by;
+    for c in 0..3 {
+        // Forward then back substitution.
+        for i in 0..P {
+            let mut s = x[i * 3 + c];
+            for k in 0..i {
+                s -= a[i * P + k] * x[k * 3 + c];
+            }
+            x[i * 3 + c] = s / a[i * P + i];
+        }
+        for i in (0..P).rev() {
+            let mut s = x[i * 3 + c];
+            for k in i + 1..P {
+                s -= a[k * P + i] * x[k * 3 + c];
+            }
+            x[i * 3 + c] = s / a[i * P + i];
+        }
+    }
+    Some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cholesky_solves_a_known_system() {
+        // A = diag(1..9) + 0.5 on the first off-diagonal, B from a known beta.
+        let mut bb = [0.0; P * P];
+        for i in 0..P {
+            bb[i * P + i] = (i + 1) as f64;
+            if i + 1 < P {
+                bb[i * P + i + 1] = 0.5;
+            }
+        }
+        let beta: Vec<f64> = (0..P * 3).map(|k| (k as f64 * 0.37).sin()).collect();
+        let mut by = [0.0; P * 3];
+        for r in 0..P {
+            for c in 0..3 {
+                by[r * 3 + c] = (0..P)
+                    .map(|k| {
+                        let (lo, hi) = (r.min(k), r.max(k));
+                        bb[lo * P + hi] * beta[k * 3 + c]
+                    })
+                    .sum();
+            }
+        }
+        let x = solve(&bb, &by).expect("positive definite");
+        for k in 0..P * 3 {
+            assert!(
+                (x[k] - beta[k]).abs() < 1e-6,
+                "{k}: {} vs {}",
+                x[k],
+                beta[k]
+            );
+        }
+    }
+}
