@@ -25,13 +25,15 @@ struct Args {
     /// Output asset (.glb). Written to a temporary file and renamed when complete.
     #[arg(short, long)]
     output: PathBuf,
-    /// Starting point: fast (CPU-sized, minutes), balanced (default), quality, paper
-    /// (the paper's sizes: 512x512, 4 levels, 16 channels, U-Net 64..512), or auto: measure
-    /// and decide within --time-budget (default 600 s) whether the scene needs the SH layer,
-    /// which network and texture size the budget affords, which levels and channels are
-    /// worth their bytes; the --report lists every decision with what it cost and saved.
-    #[arg(long, default_value = "balanced")]
-    preset: Preset,
+    /// Starting point. auto (the default): measure and decide within --time-budget (default
+    /// 600 s) whether the scene needs the SH layer, which network and texture size the budget
+    /// affords, which levels and channels are worth their bytes; the --report lists every
+    /// decision with what it cost and saved. Fixed presets: fast (CPU-sized, minutes),
+    /// balanced, quality, paper (the paper's sizes: 512x512, 4 levels, 16 channels, U-Net
+    /// 64..512). Without --preset, a flag that auto would decide (--resolution, --levels,
+    /// --no-sh, --arch, --widths, --steps) or --resume selects balanced instead.
+    #[arg(long)]
+    preset: Option<Preset>,
     /// Proxy mesh (.glb/.gltf/.obj/.ply) instead of the capture's.
     #[arg(long)]
     mesh: Option<PathBuf>,
@@ -101,8 +103,30 @@ struct Args {
     limits: Vec<String>,
 }
 
+/// The flags `--preset auto` decides itself, and whether each was given.
+fn auto_decided(a: &Args) -> [(&'static str, bool); 6] {
+    [
+        ("--resolution", a.resolution.is_some()),
+        ("--levels", a.levels.is_some()),
+        ("--no-sh", a.no_sh),
+        ("--arch", a.arch.is_some()),
+        ("--widths", a.widths.is_some()),
+        ("--steps", a.steps.is_some()),
+    ]
+}
+
+/// `--preset`, or auto unless a flag asks for what only a fixed preset has.
+fn preset(a: &Args) -> Preset {
+    a.preset
+        .unwrap_or(if a.resume || auto_decided(a).iter().any(|d| d.1) {
+            Preset::Balanced
+        } else {
+            Preset::Auto
+        })
+}
+
 fn config(a: &Args) -> TrainConfig {
-    let mut c = TrainConfig::preset(a.preset);
+    let mut c = TrainConfig::preset(preset(a));
     if let Some(v) = a.resolution {
         c.resolution = v;
     }
@@ -150,16 +174,8 @@ fn config(a: &Args) -> TrainConfig {
 }
 
 fn run(a: Args) -> Result<()> {
-    if a.preset == Preset::Auto {
-        let decided = [
-            ("--resolution", a.resolution.is_some()),
-            ("--levels", a.levels.is_some()),
-            ("--no-sh", a.no_sh),
-            ("--arch", a.arch.is_some()),
-            ("--widths", a.widths.is_some()),
-            ("--steps", a.steps.is_some()),
-        ];
-        if let Some((flag, _)) = decided.iter().find(|d| d.1) {
+    if preset(&a) == Preset::Auto {
+        if let Some((flag, _)) = auto_decided(&a).iter().find(|d| d.1) {
             anyhow::bail!("{flag} cannot be combined with --preset auto, which decides it by measurement (pick a fixed preset to set it)");
         }
     } else if a.write_unpruned.is_some() {
@@ -219,6 +235,15 @@ mod tests {
         let mut argv = vec!["dnr-bake", "cap", "-o", "out.glb"];
         argv.extend_from_slice(extra);
         config(&Args::parse_from(argv))
+    }
+
+    #[test]
+    fn auto_is_the_default_unless_a_fixed_preset_flag_is_given() {
+        assert_eq!(cfg_of(&[]).preset, Preset::Auto);
+        assert_eq!(cfg_of(&["--arch", "none"]).preset, Preset::Balanced);
+        assert_eq!(cfg_of(&["--resume"]).preset, Preset::Balanced);
+        assert_eq!(cfg_of(&["--preset", "fast"]).preset, Preset::Fast);
+        assert_eq!(cfg_of(&["--time-budget", "60"]).preset, Preset::Auto);
     }
 
     #[test]

@@ -227,9 +227,10 @@ mod tests {
             }
         }
         let x = solve(&bb, &by).expect("positive definite");
+        // The ridge (1e-6 of the mean diagonal) biases the solution by about that much.
         for k in 0..P * 3 {
             assert!(
-                (x[k] - beta[k]).abs() < 1e-6,
+                (x[k] - beta[k]).abs() < 1e-4,
                 "{k}: {} vs {}",
                 x[k],
                 beta[k]

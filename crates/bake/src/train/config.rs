@@ -38,7 +38,8 @@ pub const MLP_DEFAULT_WIDTHS: [u32; 2] = [64, 64];
 pub enum Preset {
     /// CPU-sized, a useful asset from a tiny capture in under two minutes.
     Fast,
-    /// The default trade-off.
+    /// The trade-off of the paper's sizes scaled to a CPU: the largest size auto chooses,
+    /// and the preset used when a flag auto would decide is given without `--preset`.
     Balanced,
     /// Bigger texture and network, longer training.
     Quality,
