@@ -155,6 +155,18 @@ pub(crate) struct ExportParts<'a> {
     pub out_ch: usize,
 }
 
+impl<'a> ExportParts<'a> {
+    /// The trainer's current state with `net` (its [`Trainer::export_net`]).
+    pub fn of(trainer: &'a Trainer, net: &'a export::ExportNet) -> Self {
+        ExportParts {
+            pyr: &trainer.pyr,
+            sh: trainer.sh_layer(),
+            net,
+            out_ch: trainer.out_ch,
+        }
+    }
+}
+
 /// Builds and writes an asset atomically; returns its size.
 pub(crate) fn write_asset(
     loaded: &Loaded,
@@ -375,12 +387,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     )?;
     progress.finish();
     let net = trainer.export_net();
-    let parts = ExportParts {
-        pyr: &trainer.pyr,
-        sh: trainer.sh_layer(),
-        net: &net,
-        out_ch: trainer.out_ch,
-    };
+    let parts = ExportParts::of(&trainer, &net);
     let outcome = Outcome {
         config: &trainer.cfg,
         steps: trainer.step,

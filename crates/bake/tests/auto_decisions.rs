@@ -106,24 +106,20 @@ fn stripping_zeroed_channels_renders_the_same() {
         let f = &cap.test[0];
         r.render(&f.camera, f.width(), f.height()).unwrap()
     };
+    let max_diff = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
     let a = render(&t.pyr, &net);
     let b = render(&pyr2, &net2);
-    let max = a
-        .data
-        .iter()
-        .zip(&b.data)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0f32, f32::max);
+    let max = max_diff(&a.data, &b.data);
     assert!(max < 1e-5, "stripped asset renders differently: {max}");
     // A channel that is not zero must not be stripped silently: its removal shows.
     let (pyr3, net3) = prune::strip_channels(&t.pyr, &net, &[13]);
     let c3 = render(&pyr3, &net3);
-    let max3 = a
-        .data
-        .iter()
-        .zip(&c3.data)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0f32, f32::max);
+    let max3 = max_diff(&a.data, &c3.data);
     assert!(
         max3 > 1e-4,
         "dropping a live channel changed nothing ({max3})"

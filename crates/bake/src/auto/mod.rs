@@ -434,12 +434,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     ];
 
     let net = tr.export_net();
-    let unpruned = ExportParts {
-        pyr: &tr.pyr,
-        sh: tr.sh_layer(),
-        net: &net,
-        out_ch: tr.out_ch,
-    };
+    let unpruned = ExportParts::of(&tr, &net);
     let (unpruned_bytes, unpruned_ms) = measure_asset(
         &loaded,
         &unpruned,

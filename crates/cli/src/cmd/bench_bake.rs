@@ -109,6 +109,21 @@ pub struct Cell {
     pub asset_bytes: Option<u64>,
 }
 
+impl Cell {
+    /// The cell of `config` at `budget` that evaluation `r` stands for.
+    fn of(config: &str, budget: f64, r: &Record) -> Cell {
+        Cell {
+            config: config.to_string(),
+            budget,
+            seconds: r.seconds,
+            step: r.step,
+            psnr: r.test_psnr,
+            mse: r.test_mse,
+            asset_bytes: None,
+        }
+    }
+}
+
 /// One configuration's run.
 #[derive(Clone, Debug, Serialize)]
 #[serde(rename_all = "camelCase")]
@@ -232,15 +247,7 @@ pub fn run(plan: &Plan<'_>) -> Result<Table> {
             } else {
                 for &b in &plan.budgets {
                     if let Some(r) = at_budget(&summary.records, b) {
-                        table.cells.push(Cell {
-                            config: name.clone(),
-                            budget: b,
-                            seconds: r.seconds,
-                            step: r.step,
-                            psnr: r.test_psnr,
-                            mse: r.test_mse,
-                            asset_bytes: None,
-                        });
+                        table.cells.push(Cell::of(&name, b, r));
                     }
                 }
             }
@@ -509,15 +516,7 @@ mod tests {
         for run in &runs {
             for b in [60.0, 180.0, 600.0] {
                 let r = at_budget(&run.records, b).unwrap();
-                cells.push(Cell {
-                    config: run.config.clone(),
-                    budget: b,
-                    seconds: r.seconds,
-                    step: r.step,
-                    psnr: r.test_psnr,
-                    mse: r.test_mse,
-                    asset_bytes: None,
-                });
+                cells.push(Cell::of(&run.config, b, r));
             }
         }
         let t = Table {
