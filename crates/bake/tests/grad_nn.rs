@@ -10,7 +10,7 @@
 use dnr_bake::kernels::activation::{leaky_relu_backward, tanh_backward};
 use dnr_bake::kernels::adam::{Adam, AdamConfig, SparseAdam};
 use dnr_bake::kernels::concat::concat_backward;
-use dnr_bake::kernels::conv::{conv_backward, conv_forward};
+use dnr_bake::kernels::conv::{conv_backward, conv_forward, SMALL_N};
 use dnr_bake::kernels::conv_transpose::{conv_transpose_backward, conv_transpose_forward};
 use dnr_bake::kernels::dense::{dense_backward, mlp_backward, mlp_forward};
 use dnr_bake::kernels::loss::{colour_l1_loss, l1_loss, texture_l2_reg};
@@ -19,7 +19,7 @@ use dnr_bake::kernels::unet::UNetTrain;
 use dnr_bake::kernels::upsample::upsample_nearest2_backward;
 use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
 use dnr_runtime::nn::activation::{leaky_relu, tanh};
-use dnr_runtime::nn::conv::ConvGeom;
+use dnr_runtime::nn::conv::{ConvGeom, ConvLayout};
 use dnr_runtime::nn::norm::instance_norm;
 use dnr_runtime::nn::upsample::upsample_nearest2;
 use dnr_runtime::nn::Tensor;
@@ -243,13 +243,41 @@ fn conv_backward_matches_fd() {
     check_conv(7, 2, 3, 11, 8, 5, 3, 2);
     check_conv(8, 4, 3, 5, 6, 1, 1, 0);
     check_conv(9, 2, 2, 5, 5, 4, 2, 2);
+    // More than SMALL_N GEMM columns: the shifted-row products instead of the im2col matrix,
+    // for each layout kind (space-to-depth, padded, explicit im2col).
+    for (seed, (h, w, k, s, p)) in [(36, 35, 4, 2, 1), (17, 17, 3, 1, 1), (50, 49, 5, 3, 2)]
+        .into_iter()
+        .enumerate()
+    {
+        let l = ConvLayout::new(
+            ConvGeom {
+                c_in: 1,
+                c_out: 2,
+                k,
+                stride: s,
+                pad: p,
+            },
+            h,
+            w,
+        )
+        .unwrap();
+        assert!(l.n > SMALL_N, "{h}x{w} k{k}: {} columns", l.n);
+        check_conv(20 + seed as u64, 1, 2, h, w, k, s, p);
+    }
 }
 
 #[test]
 fn conv_transpose_backward_matches_fd() {
-    for (seed, &(ci, co, h, w)) in [(1, 1, 1, 1), (3, 5, 2, 3), (2, 7, 5, 3), (13, 2, 3, 2)]
-        .iter()
-        .enumerate()
+    // The last shape's adjoint conv has more than SMALL_N GEMM columns (shifted-row path).
+    for (seed, &(ci, co, h, w)) in [
+        (1, 1, 1, 1),
+        (3, 5, 2, 3),
+        (2, 7, 5, 3),
+        (13, 2, 3, 2),
+        (1, 2, 17, 16),
+    ]
+    .iter()
+    .enumerate()
     {
         let mut r = rng(10 + seed as u64);
         let x = randt(&mut r, ci, h, w);

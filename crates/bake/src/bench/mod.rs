@@ -5,6 +5,7 @@
 use crate::kernels::adam::{Adam, AdamConfig};
 use crate::kernels::loss::l1_loss;
 use crate::kernels::unet::UNetTrain;
+use crate::train::PhaseSeconds;
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
 use dnr_runtime::nn::conv::ConvLayout;
 use dnr_runtime::nn::gemm::{gemm_nn, simd_level, PackedA, SimdLevel};
@@ -89,6 +90,8 @@ pub struct BenchRow {
     pub ms_median: f64,
     /// Conv GFLOP per step (training: forward + input gradient + weight gradient = 3x forward).
     pub gflop: f64,
+    /// Mean milliseconds per step of each phase ("step" rows only).
+    pub phases: Option<PhaseSeconds>,
 }
 
 impl BenchRow {
@@ -130,6 +133,7 @@ pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
         ms_min: t_min * 1e3,
         ms_median: t_med * 1e3,
         gflop: 3.0 * p.flops(size, size) as f64 * 1e-9,
+        phases: None,
     }
 }
 
@@ -150,6 +154,7 @@ pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
         ms_min: t_min * 1e3,
         ms_median: t_med * 1e3,
         gflop: p.flops(size, size) as f64 * 1e-9,
+        phases: None,
     }
 }
 
@@ -186,6 +191,7 @@ pub fn bench_encoder_gemm(widths: &[usize], size: usize, reps: usize) -> BenchRo
         ms_min: t_min * 1e3,
         ms_median: t_med * 1e3,
         gflop: flops as f64 * 1e-9,
+        phases: None,
     }
 }
 
@@ -213,7 +219,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
             rows.push(bench_train(widths, size, reps));
             // The baker's whole step: texture sampling, SH, U-Net, losses, texture update.
             let w32: Vec<u32> = widths.iter().map(|&w| w as u32).collect();
-            let (ms_min, ms_median) = step::bench_trainer_step(&w32, size, reps);
+            let (ms_min, ms_median, phases) = step::bench_trainer_step(&w32, size, reps);
             rows.push(BenchRow {
                 kind: "step",
                 widths: widths.to_vec(),
@@ -221,6 +227,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
                 ms_min,
                 ms_median,
                 gflop: 3.0 * bench_params(widths).flops(size, size) as f64 * 1e-9,
+                phases: Some(phases),
             });
         }
         for size in [256, 512] {
@@ -261,6 +268,26 @@ impl fmt::Display for BenchReport {
                 r.gflops(),
                 100.0 * r.gflops() / self.peak_gflops
             )?;
+        }
+        writeln!(
+            f,
+            "\nWhole step by phase (mean ms per step): | widths | size | features | forward | backward | texture update | network update |"
+        )?;
+        writeln!(f, "| --- | ---: | ---: | ---: | ---: | ---: | ---: |")?;
+        for r in &self.rows {
+            if let Some(p) = &r.phases {
+                writeln!(
+                    f,
+                    "| {:?} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                    r.widths,
+                    r.size,
+                    p.features,
+                    p.forward,
+                    p.backward,
+                    p.texture_update,
+                    p.network_update
+                )?;
+            }
         }
         Ok(())
     }

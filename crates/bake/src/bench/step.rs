@@ -9,7 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use super::time_min_median;
 use crate::train::config::{Arch, Preset, TrainConfig};
 use crate::train::views::View;
-use crate::train::Trainer;
+use crate::train::{PhaseSeconds, Trainer};
 
 /// A synthetic view shaped like a real one, mirroring `synthetic_inputs` of the PyTorch
 /// reference (shared/peers/dnr_torch.py) so `dnr bench train --torch` compares like with like:
@@ -67,8 +67,9 @@ pub fn synthetic_view(size: usize, seed: u64) -> View {
 }
 
 /// Milliseconds (min, median over `reps`) of one full training step at `size` x `size` with a
-/// 512x512x16, 4-level texture, SH, and a U-Net of `widths` (RGBA output).
-pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64) {
+/// 512x512x16, 4-level texture, SH, and a U-Net of `widths` (RGBA output), and the mean
+/// milliseconds per step of each phase (warm-up step included).
+pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64, PhaseSeconds) {
     let views: Vec<View> = (0..2).map(|s| synthetic_view(size, s)).collect();
     let cfg = TrainConfig {
         arch: Arch::Unet,
@@ -85,5 +86,14 @@ pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64
     let (min, med) = time_min_median(reps, || {
         t.step(&views).expect("step");
     });
-    (1e3 * min, 1e3 * med)
+    let p = t.phase_seconds;
+    let k = 1e3 / t.step.max(1) as f64;
+    let per_step = PhaseSeconds {
+        features: p.features * k,
+        forward: p.forward * k,
+        backward: p.backward * k,
+        texture_update: p.texture_update * k,
+        network_update: p.network_update * k,
+    };
+    (1e3 * min, 1e3 * med, per_step)
 }

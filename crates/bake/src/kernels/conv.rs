@@ -118,51 +118,102 @@ pub fn conv_backward(
     db: &mut [f32],
     dx: Option<&mut Tensor>,
 ) {
+    let g = cache.layout.geom;
+    assert!(
+        w.len() == g.weight_len() && db.len() == g.c_out,
+        "conv_backward: weight shapes"
+    );
+    bias_grad(dy, db);
+    conv_grads(cache, dy, Some(dw), dx.map(|d| (w, d)));
+}
+
+/// The weight gradient alone: adds `dL/dw` (`[c_out, c_in, k, k]`) of the convolution that
+/// `cache` was gathered for, given `dy` (`c_out x H_out x W_out`). A transposed convolution's
+/// weight gradient is this, with the roles of input and output gradient exchanged.
+pub fn conv_weight_grad(cache: &ConvCache, dy: &Tensor, dw: &mut [f32]) {
+    conv_grads(cache, dy, Some(dw), None);
+}
+
+/// GEMM columns (output pixels with the layout's junk columns) up to which the gradients are
+/// taken with an explicit transposed im2col matrix: on the deep layers' small planes the
+/// shifted-row products have an inner dimension of a few dozen and pay more for packing the
+/// transposed weights than for the arithmetic (see `dnr bench train`).
+pub const SMALL_N: usize = 256;
+
+/// Weights per block of the im2col transposes: the block's input rows stay in L1 while its
+/// output row segment is written whole.
+const TRANSPOSE_BLOCK: usize = 16;
+
+/// Adds the weight gradient to `dw` and, with `dx = Some((w, dx))`, the input gradient to
+/// `dx`. dy: `c_out x H_out x W_out`.
+fn conv_grads(
+    cache: &ConvCache,
+    dy: &Tensor,
+    dw: Option<&mut [f32]>,
+    dx: Option<(&[f32], &mut Tensor)>,
+) {
     let l = &cache.layout;
     let g = l.geom;
     assert!(
         dy.c == g.c_out && dy.h == l.h_out && dy.w == l.w_out,
-        "conv_backward: dy shape"
+        "conv gradients: dy shape"
     );
     assert!(
-        w.len() == g.weight_len() && dw.len() == w.len() && db.len() == g.c_out,
-        "conv_backward: weight shapes"
+        dw.as_ref().is_none_or(|d| d.len() == g.weight_len())
+            && dx.as_ref().is_none_or(|(w, _)| w.len() == g.weight_len()),
+        "conv gradients: weight shapes"
     );
-    bias_grad(dy, db);
+    if l.n <= SMALL_N {
+        conv_grads_small(cache, dy, dw, dx);
+    } else {
+        conv_grads_shifted(cache, dy, dw, dx);
+    }
+}
 
+/// [`conv_grads`] as products over the gathered buffer's shifted rows (no im2col matrix).
+fn conv_grads_shifted(
+    cache: &ConvCache,
+    dy: &Tensor,
+    dw: Option<&mut [f32]>,
+    dx: Option<(&[f32], &mut Tensor)>,
+) {
+    let l = &cache.layout;
+    let g = l.geom;
     // Padded output gradient: each plane behind a margin of the largest shift, long enough to
     // be read at every position of an input plane (see the adjoint product below).
     let margin = l.shifts.iter().copied().max().unwrap_or(0);
     let in_len = l.plane_h * l.pitch;
     let slot = margin + in_len.max(l.n);
     let dyp = pitched_rows(dy, l.pitch, margin, slot);
-
-    // dW[o][k] = sum_j dY[o][j] B[k][j]: a dot product per (output channel, GEMM row).
     let kk = l.gemm_k();
     let per_o = g.c_in * g.k * g.k;
-    let a_rows: Vec<usize> = (0..g.c_out).map(|o| o * slot + margin).collect();
-    let mut dwg = pool::scratch(g.c_out * kk);
-    gemm_nt(
-        &dyp,
-        &a_rows,
-        &cache.buf,
-        &l.rows(),
-        l.n,
-        &mut dwg,
-        kk,
-        false,
-    );
-    let map: Vec<usize> = (0..kk).map(|k| l.weight_index(k)).collect();
-    for o in 0..g.c_out {
-        for k in 0..kk {
-            dw[o * per_o + map[k]] += dwg[o * kk + k];
+
+    // dW[o][k] = sum_j dY[o][j] B[k][j]: a dot product per (output channel, GEMM row).
+    if let Some(dw) = dw {
+        let a_rows: Vec<usize> = (0..g.c_out).map(|o| o * slot + margin).collect();
+        let mut dwg = pool::scratch(g.c_out * kk);
+        gemm_nt(
+            &dyp,
+            &a_rows,
+            &cache.buf,
+            &l.rows(),
+            l.n,
+            &mut dwg,
+            kk,
+            false,
+        );
+        let map: Vec<usize> = (0..kk).map(|k| l.weight_index(k)).collect();
+        for o in 0..g.c_out {
+            for k in 0..kk {
+                dw[o * per_o + map[k]] += dwg[o * kk + k];
+            }
         }
+        pool::recycle(dwg);
     }
-    pool::recycle(dwg);
 
     // dB[p][m] = sum_{o,t} W(o, p taps + t) dY[o][m - shift_t]: the adjoint, again one GEMM
     // over shifted rows, then the adjoint of the gather.
-    if let Some(dx) = dx {
+    if let Some((w, dx)) = dx {
         let taps = l.taps();
         let (p_part, t_part) = weight_index_parts(g);
         let cols: Vec<usize> = (0..g.c_out * taps)
@@ -175,6 +226,69 @@ pub fn conv_backward(
         // Every value scatter_add reads (the first in_len of each plane) is written.
         let mut dbuf = pool::scratch(l.buffer_len());
         gemm_nn(&at, &dyp, &b_rows, in_len, &mut dbuf, l.plane_stride, false);
+        l.scatter_add(&dbuf, dx);
+        pool::recycle(dbuf);
+    }
+    pool::recycle(dyp);
+}
+
+/// [`conv_grads`] on small planes, with the weights as they are: `dW += dY' Bᵀ` and
+/// `dB' = dY'ᵀ W`, where `B` is the gathered input as an explicit im2col matrix whose rows are
+/// in OIHW weight order (so `dW` accumulates straight into `dw`), and `dB'` goes back through
+/// the im2col's and the gather's adjoints.
+fn conv_grads_small(
+    cache: &ConvCache,
+    dy: &Tensor,
+    dw: Option<&mut [f32]>,
+    dx: Option<(&[f32], &mut Tensor)>,
+) {
+    let l = &cache.layout;
+    let (g, n) = (l.geom, l.n);
+    let per_o = g.c_in * g.k * g.k;
+    debug_assert_eq!(l.gemm_k(), per_o, "one GEMM row per weight");
+    // off[r]: where the gathered input row of weight r starts.
+    let mut off = vec![0usize; per_o];
+    for (k, &o) in l.rows().iter().enumerate() {
+        off[l.weight_index(k)] = o;
+    }
+    // dY with the GEMM's pitch (c_out x n; junk columns zero).
+    let dyp = pitched_rows(dy, l.pitch, 0, n);
+    if let Some(dw) = dw {
+        // bt[j][r] = B[r][j]: n x per_o.
+        let mut bt = pool::scratch(n * per_o);
+        for (blk, offs) in off.chunks(TRANSPOSE_BLOCK).enumerate() {
+            let r0 = blk * TRANSPOSE_BLOCK;
+            for j in 0..n {
+                let dst = &mut bt[j * per_o + r0..][..offs.len()];
+                for (d, &o) in dst.iter_mut().zip(offs) {
+                    *d = cache.buf[o + j];
+                }
+            }
+        }
+        // dW (c_out x per_o) += dY' (c_out x n) bt (n x per_o).
+        let bt_rows: Vec<usize> = (0..n).map(|j| j * per_o).collect();
+        let a = PackedA::new(g.c_out, n, &dyp, n, 1);
+        gemm_nn(&a, &bt, &bt_rows, per_o, dw, per_o, true);
+        pool::recycle(bt);
+    }
+    if let Some((w, dx)) = dx {
+        // dB'ᵀ (n x per_o) = dY'ᵀ (n x c_out) W (c_out x per_o).
+        let w_rows: Vec<usize> = (0..g.c_out).map(|o| o * per_o).collect();
+        let mut dbt = pool::scratch(n * per_o);
+        let a = PackedA::new(n, g.c_out, &dyp, 1, n);
+        gemm_nn(&a, w, &w_rows, per_o, &mut dbt, per_o, false);
+        // The im2col's adjoint into the layout buffer, then the gather's.
+        let mut dbuf = pool::zeroed(l.buffer_len());
+        for (blk, offs) in off.chunks(TRANSPOSE_BLOCK).enumerate() {
+            let r0 = blk * TRANSPOSE_BLOCK;
+            for j in 0..n {
+                let src = &dbt[j * per_o + r0..][..offs.len()];
+                for (&v, &o) in src.iter().zip(offs) {
+                    dbuf[o + j] += v;
+                }
+            }
+        }
+        pool::recycle(dbt);
         l.scatter_add(&dbuf, dx);
         pool::recycle(dbuf);
     }

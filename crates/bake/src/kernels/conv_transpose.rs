@@ -1,11 +1,10 @@
 //! Transposed convolution 4x4 stride 2 padding 1 (weights `[c_in, c_out, 4, 4]`): forward that
 //! keeps what backward needs, and backward.
 
-use super::conv::bias_grad;
+use super::conv::{bias_grad, conv_weight_grad, ConvCache};
 use dnr_runtime::nn::activation::Act;
-use dnr_runtime::nn::conv::{conv2d, ConvGeom};
+use dnr_runtime::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
 use dnr_runtime::nn::conv_transpose::TconvLayout;
-use dnr_runtime::nn::gemm::gemm_nt;
 use dnr_runtime::nn::tensor::{par_min_items, pool};
 use dnr_runtime::nn::{NnError, Tensor};
 use rayon::prelude::*;
@@ -68,6 +67,11 @@ pub fn conv_transpose_forward_act(
 /// Backward of [`conv_transpose_forward`].
 /// dy: `c_out x 2H x 2W`; w: `[c_in, c_out, 4, 4]`.
 /// Adds to dw and db; adds the input gradient (`c_in x H x W`) to `dx` when given.
+///
+/// A transposed conv is the adjoint of the 4x4 s2 p1 conv `C` from `c_out` channels on
+/// `2H x 2W` to `c_in` on `H x W` with the same weight tensor read as OIHW: its input gradient
+/// is `C(dy)`, and its weight gradient is `C`'s weight gradient on input `dy` with the
+/// (activated) tconv input `x` in the role of the output gradient. Both use one gather of dy.
 pub fn conv_transpose_backward(
     cache: &TconvCache,
     w: &[f32],
@@ -86,62 +90,47 @@ pub fn conv_transpose_backward(
         "conv_transpose_backward: weights"
     );
     bias_grad(dy, db);
-    let (h, wi, n, pitch) = (l.h_in, l.w_in, l.n, l.pitch);
-    let kk = 4 * l.c_in;
-    let a_rows: Vec<usize> = (0..l.c_out).map(|o| o * n).collect();
-    let mut dwg = pool::scratch(l.c_out * kk);
-    let mut dyp = pool::zeroed(l.c_out * n);
-    for ph in 0..4 {
-        let (py, px) = (ph / 2, ph % 2);
-        // This phase's output gradient with the GEMM's row pitch (junk columns stay zero).
-        dyp.par_chunks_mut(n)
-            .zip(dy.data.par_chunks(dy.plane_len()))
-            .with_min_len(par_min_items(n))
-            .for_each(|(dst, src)| {
-                for y in 0..h {
-                    let srow = &src[(2 * y + py) * dy.w..(2 * y + py + 1) * dy.w];
-                    for (d, s) in dst[y * pitch..y * pitch + wi]
-                        .iter_mut()
-                        .zip(srow[px..].chunks(2))
-                    {
-                        *d = s[0];
-                    }
-                }
-            });
-        gemm_nt(
-            &dyp,
-            &a_rows,
-            &cache.buf,
-            &l.rows(ph),
-            n,
-            &mut dwg,
-            kk,
-            false,
-        );
-        // dw[c][o][ky][kx]: GEMM column c * 4 + t of phase ph is kernel element kernel_pos(ph, t).
-        for c in 0..l.c_in {
-            for t in 0..4 {
-                let (ky, kx) = TconvLayout::kernel_pos(ph, t);
-                for o in 0..l.c_out {
-                    dw[((c * l.c_out + o) * 4 + ky) * 4 + kx] += dwg[o * kk + c * 4 + t];
-                }
-            }
-        }
-    }
-    pool::recycle(dwg);
-    pool::recycle(dyp);
+    let g = ConvGeom {
+        c_in: l.c_out,
+        c_out: l.c_in,
+        k: 4,
+        stride: 2,
+        pad: 1,
+    };
+    let layout = ConvLayout::new(g, dy.h, dy.w).expect("a 4x4 s2 p1 conv of an even size");
+    let adj = ConvCache {
+        buf: layout.gather(dy),
+        layout,
+    };
     if let Some(dx) = dx {
-        // A transposed conv is the adjoint of the 4x4 s2 p1 conv with the same weight tensor
-        // read as OIHW `[c_in, c_out, 4, 4]`, so its input gradient is that conv of dy.
-        let g = ConvGeom {
-            c_in: l.c_out,
-            c_out: l.c_in,
-            k: 4,
-            stride: 2,
-            pad: 1,
-        };
-        let d = conv2d(dy, w, None, g).expect("shapes checked above");
+        let raw = adj.layout.gemm(&pack_conv_weights(g, w), &adj.buf);
+        let d = adj.layout.finish(&raw, None);
+        pool::recycle(raw);
         dx.data.iter_mut().zip(&d.data).for_each(|(a, b)| *a += b);
         d.recycle();
     }
+    let x = tconv_input(cache);
+    conv_weight_grad(&adj, &x, dw);
+    x.recycle();
+    pool::recycle(adj.buf);
+}
+
+/// The activated input `c_in x H x W` of a transposed conv, from its zero-padded planes.
+fn tconv_input(cache: &TconvCache) -> Tensor {
+    let l = &cache.layout;
+    let (h, w, p) = (l.h_in, l.w_in, l.pitch);
+    let mut x = Tensor::scratch(l.c_in, h, w);
+    if h * w == 0 {
+        return x;
+    }
+    x.data
+        .par_chunks_mut(h * w)
+        .zip(cache.buf.par_chunks(l.plane_stride))
+        .with_min_len(par_min_items(h * w))
+        .for_each(|(dst, src)| {
+            for y in 0..h {
+                dst[y * w..(y + 1) * w].copy_from_slice(&src[(y + 1) * p + 1..][..w]);
+            }
+        });
+    x
 }

@@ -152,6 +152,38 @@ pub struct Trainer {
     loss_n: u64,
     /// Channels pruned by `--preset auto`: held at zero in every level after each step.
     zero_channels: Vec<usize>,
+    /// Seconds spent in each phase of [`Trainer::step`] since construction.
+    pub phase_seconds: PhaseSeconds,
+}
+
+/// Wall seconds of the phases of [`Trainer::step`], summed over steps (what `dnr bench train`
+/// breaks the whole step into).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PhaseSeconds {
+    /// Crop selection, texture sampling (with the taps backward reuses) and SH.
+    pub features: f64,
+    /// Renderer forward and the photometric loss.
+    pub forward: f64,
+    /// Renderer backward to the feature image.
+    pub backward: f64,
+    /// SH backward, mean-colour loss, texture scatter and its sparse Adam.
+    pub texture_update: f64,
+    /// Adam on the renderer's weights (and pruned channels held at zero).
+    pub network_update: f64,
+}
+
+impl PhaseSeconds {
+    /// Sum of the phases.
+    pub fn total(&self) -> f64 {
+        self.features + self.forward + self.backward + self.texture_update + self.network_update
+    }
+}
+
+/// Adds the seconds since `*t` to `acc` and restarts `*t`.
+fn lap(t: &mut Instant, acc: &mut f64) {
+    let now = Instant::now();
+    *acc += (now - *t).as_secs_f64();
+    *t = now;
 }
 
 fn mlp_params(cfg: &TrainConfig, out_ch: usize) -> MlpParams {
@@ -254,6 +286,7 @@ impl Trainer {
             loss_sum: 0.0,
             loss_n: 0,
             zero_channels: Vec::new(),
+            phase_seconds: PhaseSeconds::default(),
         })
     }
 
@@ -379,6 +412,15 @@ impl Trainer {
     /// The network's gradients are zero between steps (the fused Adam step clears them),
     /// and large buffers go back to the runtime's tensor pool, so a step allocates little.
     pub fn step(&mut self, views: &[View]) -> Result<f64, TrainError> {
+        // On a worker of the pool: the step's many small parallel kernels are then forked
+        // from a worker (the other one steals) instead of injected from outside, where the
+        // caller sleeps and is woken at every one.
+        rayon::scope(|_| self.step_in_pool(views))
+    }
+
+    fn step_in_pool(&mut self, views: &[View]) -> Result<f64, TrainError> {
+        let mut t = Instant::now();
+        let mut ph = self.phase_seconds;
         let v = self.sample_crop(views);
         let v: &View = &v;
         let (h, w) = (v.height(), v.width());
@@ -394,6 +436,7 @@ impl Trainer {
         let taps = sample_forward_taps(&self.pyr, &v.gbuf, &mut x.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         self.sh_modulate(v, &mut x.data)?;
+        lap(&mut t, &mut ph.features);
 
         // Forward to straight colour and alpha, composite on white as the target is, L1, and
         // backward to the feature image.
@@ -411,6 +454,7 @@ impl Trainer {
                     .map_err(|e| TrainError::Kernel(e.to_string()))?;
                 let mut dcomp = Tensor::zeros(3, h, w);
                 let loss = l1_loss(&comp, &target, None, 1.0, &mut dcomp);
+                lap(&mut t, &mut ph.forward);
                 // colour = clamp(x): gradient only where x is inside [0, 1].
                 let mut dx = Tensor::zeros(self.pyr.channels, h, w);
                 for ((d, &x), (&g, &a)) in dx.data[..3 * n]
@@ -431,6 +475,7 @@ impl Trainer {
                 let mut dy = Tensor::zeros(self.out_ch, h, w);
                 let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
                 y.recycle();
+                lap(&mut t, &mut ph.forward);
                 let dx = net.backward(&acts, &dy);
                 dy.recycle();
                 (loss, dx)
@@ -444,11 +489,13 @@ impl Trainer {
                 let mut dy = Tensor::zeros(self.out_ch, h, w);
                 let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
                 y.recycle();
+                lap(&mut t, &mut ph.forward);
                 let dx = net.backward_frame(&acts, &dy);
                 dy.recycle();
                 (loss, dx)
             }
         };
+        lap(&mut t, &mut ph.backward);
         // SH modulation is linear and diagonal: its backward is itself.
         self.sh_modulate(v, &mut dx.data)?;
         // Mean-colour supervision of channels 0..2 over covered object pixels.
@@ -475,6 +522,7 @@ impl Trainer {
         sample_backward_adam(&taps, &mut self.pyr, &dx.data, &mut self.tex_adam, &decay)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         dx.recycle();
+        lap(&mut t, &mut ph.texture_update);
         if let Some((weights, grads, adam)) = self.net.params_mut() {
             for ((wt, g), a) in weights
                 .iter_mut()
@@ -485,6 +533,8 @@ impl Trainer {
             }
         }
         self.zero_frozen();
+        lap(&mut t, &mut ph.network_update);
+        self.phase_seconds = ph;
         self.step += 1;
         self.loss_sum += loss;
         self.loss_n += 1;

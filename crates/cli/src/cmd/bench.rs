@@ -155,6 +155,7 @@ fn train(
             "kind": r.kind, "widths": r.widths, "size": r.size,
             "msMin": r.ms_min, "msMedian": r.ms_median, "gflop": r.gflop,
             "gflops": r.gflops(), "fractionOfPeak": r.gflops() / report.peak_gflops,
+            "phasesMs": r.phases,
         })).collect::<Vec<_>>(),
     });
     if let Some(py) = torch {

@@ -395,8 +395,9 @@ impl NnCtx<'_> {
         }
         let nrows = blk.rows.len();
         debug_assert_eq!(blk.i0 % MR, 0);
+        // pack_b writes every value the kernels read (zeros past the block's last column).
         let mut pack_store =
-            vec![0.0f32; KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK];
+            pool::scratch(KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK);
         let pack = aligned_mut(&mut pack_store);
         // Strips per kernel call: AVX-512 has 32 registers, so it takes 2 strips (6 x 32 tile,
         // 12 accumulators), or 4 when there are at most 3 rows (3 x 64, 12 accumulators).
