@@ -184,16 +184,18 @@ fn conv_grads_shifted(
     let margin = l.shifts.iter().copied().max().unwrap_or(0);
     let in_len = l.plane_h * l.pitch;
     let slot = margin + in_len.max(l.n);
-    let dyp = pitched_rows(dy, l.pitch, margin, slot);
+    let dyp_buf = pitched_rows(dy, l.pitch, margin, slot);
     let kk = l.gemm_k();
     let per_o = g.c_in * g.k * g.k;
 
     // dW[o][k] = sum_j dY[o][j] B[k][j]: a dot product per (output channel, GEMM row).
-    if let Some(dw) = dw {
+    let dyp = &dyp_buf;
+    let weight_grad = move || {
+        let Some(dw) = dw else { return };
         let a_rows: Vec<usize> = (0..g.c_out).map(|o| o * slot + margin).collect();
         let mut dwg = pool::scratch(g.c_out * kk);
         gemm_nt(
-            &dyp,
+            dyp,
             &a_rows,
             &cache.buf,
             &l.rows(),
@@ -209,11 +211,12 @@ fn conv_grads_shifted(
             }
         }
         pool::recycle(dwg);
-    }
+    };
 
     // dB[p][m] = sum_{o,t} W(o, p taps + t) dY[o][m - shift_t]: the adjoint, again one GEMM
     // over shifted rows, then the adjoint of the gather.
-    if let Some((w, dx)) = dx {
+    let input_grad = move || {
+        let Some((w, dx)) = dx else { return };
         let taps = l.taps();
         let (p_part, t_part) = weight_index_parts(g);
         let cols: Vec<usize> = (0..g.c_out * taps)
@@ -225,11 +228,13 @@ fn conv_grads_shifted(
             .collect();
         // Every value scatter_add reads (the first in_len of each plane) is written.
         let mut dbuf = pool::scratch(l.buffer_len());
-        gemm_nn(&at, &dyp, &b_rows, in_len, &mut dbuf, l.plane_stride, false);
+        gemm_nn(&at, dyp, &b_rows, in_len, &mut dbuf, l.plane_stride, false);
         l.scatter_add(&dbuf, dx);
         pool::recycle(dbuf);
-    }
-    pool::recycle(dyp);
+    };
+    // Independent products: side by side, each splitting further when a thread is idle.
+    rayon::join(weight_grad, input_grad);
+    pool::recycle(dyp_buf);
 }
 
 /// [`conv_grads`] on small planes, with the weights as they are: `dW += dY' Bᵀ` and
@@ -252,8 +257,10 @@ fn conv_grads_small(
         off[l.weight_index(k)] = o;
     }
     // dY with the GEMM's pitch (c_out x n; junk columns zero).
-    let dyp = pitched_rows(dy, l.pitch, 0, n);
-    if let Some(dw) = dw {
+    let dyp_buf = pitched_rows(dy, l.pitch, 0, n);
+    let (dyp, off) = (&dyp_buf, &off);
+    let weight_grad = move || {
+        let Some(dw) = dw else { return };
         // bt[j][r] = B[r][j]: n x per_o.
         let mut bt = pool::scratch(n * per_o);
         for (blk, offs) in off.chunks(TRANSPOSE_BLOCK).enumerate() {
@@ -267,15 +274,16 @@ fn conv_grads_small(
         }
         // dW (c_out x per_o) += dY' (c_out x n) bt (n x per_o).
         let bt_rows: Vec<usize> = (0..n).map(|j| j * per_o).collect();
-        let a = PackedA::new(g.c_out, n, &dyp, n, 1);
+        let a = PackedA::new(g.c_out, n, dyp, n, 1);
         gemm_nn(&a, &bt, &bt_rows, per_o, dw, per_o, true);
         pool::recycle(bt);
-    }
-    if let Some((w, dx)) = dx {
+    };
+    let input_grad = move || {
+        let Some((w, dx)) = dx else { return };
         // dB'ᵀ (n x per_o) = dY'ᵀ (n x c_out) W (c_out x per_o).
         let w_rows: Vec<usize> = (0..g.c_out).map(|o| o * per_o).collect();
         let mut dbt = pool::scratch(n * per_o);
-        let a = PackedA::new(n, g.c_out, &dyp, 1, n);
+        let a = PackedA::new(n, g.c_out, dyp, 1, n);
         gemm_nn(&a, w, &w_rows, per_o, &mut dbt, per_o, false);
         // The im2col's adjoint into the layout buffer, then the gather's.
         let mut dbuf = pool::zeroed(l.buffer_len());
@@ -291,6 +299,7 @@ fn conv_grads_small(
         pool::recycle(dbt);
         l.scatter_add(&dbuf, dx);
         pool::recycle(dbuf);
-    }
-    pool::recycle(dyp);
+    };
+    rayon::join(weight_grad, input_grad);
+    pool::recycle(dyp_buf);
 }

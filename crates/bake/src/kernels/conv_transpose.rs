@@ -98,21 +98,26 @@ pub fn conv_transpose_backward(
         pad: 1,
     };
     let layout = ConvLayout::new(g, dy.h, dy.w).expect("a 4x4 s2 p1 conv of an even size");
-    let adj = ConvCache {
+    let adj_cache = ConvCache {
         buf: layout.gather(dy),
         layout,
     };
-    if let Some(dx) = dx {
+    let adj = &adj_cache;
+    let input_grad = move || {
+        let Some(dx) = dx else { return };
         let raw = adj.layout.gemm(&pack_conv_weights(g, w), &adj.buf);
         let d = adj.layout.finish(&raw, None);
         pool::recycle(raw);
         dx.data.iter_mut().zip(&d.data).for_each(|(a, b)| *a += b);
         d.recycle();
-    }
-    let x = tconv_input(cache);
-    conv_weight_grad(&adj, &x, dw);
-    x.recycle();
-    pool::recycle(adj.buf);
+    };
+    let weight_grad = move || {
+        let x = tconv_input(cache);
+        conv_weight_grad(adj, &x, dw);
+        x.recycle();
+    };
+    rayon::join(input_grad, weight_grad);
+    pool::recycle(adj_cache.buf);
 }
 
 /// The activated input `c_in x H x W` of a transposed conv, from its zero-padded planes.
