@@ -32,6 +32,9 @@ pub struct TconvLayout {
     pub n: usize,
 }
 
+/// Values per activation block of [`TconvLayout::interleave_act`].
+const ROW_BLOCK: usize = 64;
+
 impl TconvLayout {
     /// Layout for a `c_in x h x w` input.
     pub fn new(c_in: usize, c_out: usize, h: usize, w: usize) -> Self {
@@ -205,15 +208,24 @@ impl TconvLayout {
                     let drow = &mut dst[(2 * y + py) * ow..(2 * y + py + 1) * ow];
                     let cols = (ow - px).div_ceil(2);
                     let s = &src[y * self.pitch..y * self.pitch + cols];
-                    match act {
-                        Act::Identity => drow[px..]
+                    if act == Act::Identity {
+                        drow[px..]
                             .chunks_mut(2)
                             .zip(s)
-                            .for_each(|(d, &v)| d[0] = v + b),
-                        _ => drow[px..]
-                            .chunks_mut(2)
-                            .zip(s)
-                            .for_each(|(d, &v)| d[0] = act.apply(v + b)),
+                            .for_each(|(d, &v)| d[0] = v + b);
+                        continue;
+                    }
+                    // The activation on contiguous values (so it vectorises), then every
+                    // other output column.
+                    let (mut biased, mut done) = ([0.0f32; ROW_BLOCK], [0.0f32; ROW_BLOCK]);
+                    for (dc, sc) in drow[px..]
+                        .chunks_mut(2 * ROW_BLOCK)
+                        .zip(s.chunks(ROW_BLOCK))
+                    {
+                        let (t, u) = (&mut biased[..sc.len()], &mut done[..sc.len()]);
+                        t.iter_mut().zip(sc).for_each(|(t, &v)| *t = v + b);
+                        act.map(t, u);
+                        dc.chunks_mut(2).zip(u.iter()).for_each(|(d, &v)| d[0] = v);
                     }
                 }
             });
