@@ -37,6 +37,40 @@ pub fn time_min_median(reps: usize, mut f: impl FnMut()) -> (f64, f64) {
     (t[0], t[t.len() / 2])
 }
 
+/// Warm-up of the training and inference rows: at least this many seconds (and two calls).
+/// Until the allocator's thresholds and the pool's buffers settle (tens of steps), a step
+/// runs slower than it does for the rest of a bake.
+pub const WARM_SECONDS: f64 = 1.0;
+/// Timed seconds of the training and inference rows: at least this long (and `reps` calls),
+/// as the PyTorch reference's `timeit` (2 warm-up calls, then at least 3 s and 5 calls).
+pub const STEADY_SECONDS: f64 = 3.0;
+
+/// Calls `f` for at least `secs` seconds and `calls` times.
+pub fn run_for(secs: f64, calls: usize, mut f: impl FnMut()) {
+    let start = Instant::now();
+    let mut n = 0;
+    while n < calls || start.elapsed().as_secs_f64() < secs {
+        f();
+        n += 1;
+    }
+}
+
+/// Minimum and median seconds of `f` in the steady state: warm-up of [`WARM_SECONDS`] (when
+/// `warm`), then timed calls for at least [`STEADY_SECONDS`] and `reps` calls.
+pub fn time_steady(reps: usize, warm: bool, mut f: impl FnMut()) -> (f64, f64) {
+    if warm {
+        run_for(WARM_SECONDS, 2, &mut f);
+    }
+    let mut t = Vec::new();
+    run_for(STEADY_SECONDS, reps.max(1), || {
+        let s = Instant::now();
+        f();
+        t.push(s.elapsed().as_secs_f64());
+    });
+    t.sort_by(f64::total_cmp);
+    (t[0], t[t.len() / 2])
+}
+
 /// GFLOP/s of a square 1024 sgemm with [`gemm_nn`] (best of `reps`).
 pub fn sgemm_peak_gflops(reps: usize) -> f64 {
     let n = 1024;
@@ -116,7 +150,7 @@ pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let target = random_tensor(&mut r, 3, size, size);
     let mut dy = Tensor::zeros(3, size, size);
     // On a pool worker, as `Trainer::step` runs.
-    let (t_min, t_med) = time_min_median(reps, || {
+    let (t_min, t_med) = time_steady(reps, true, || {
         rayon::scope(|_| {
             // Gradients start at zero: step_zero_grad clears them after each update.
             let (y, acts) = net.forward(&x).expect("shapes");
@@ -147,7 +181,7 @@ pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let unet = UNet::from_map(p.clone(), &net.to_map()).expect("own weights");
     let mut r = ChaCha8Rng::seed_from_u64(3);
     let x = random_tensor(&mut r, 16, size, size);
-    let (t_min, t_med) = time_min_median(reps, || {
+    let (t_min, t_med) = time_steady(reps, true, || {
         std::hint::black_box(unet.forward(&x).expect("shapes"));
     });
     BenchRow {

@@ -6,7 +6,7 @@ use dnr_runtime::gbuffer::GBuffer;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::time_min_median;
+use super::{run_for, time_steady, WARM_SECONDS};
 use crate::train::config::{Arch, Preset, TrainConfig};
 use crate::train::views::View;
 use crate::train::{PhaseSeconds, Trainer};
@@ -66,9 +66,9 @@ pub fn synthetic_view(size: usize, seed: u64) -> View {
     }
 }
 
-/// Milliseconds (min, median over `reps`) of one full training step at `size` x `size` with a
-/// 512x512x16, 4-level texture, SH, and a U-Net of `widths` (RGBA output), and the mean
-/// milliseconds per step of each phase (warm-up step included).
+/// Milliseconds (min, median in the steady state, see [`time_steady`]) of one full training
+/// step at `size` x `size` with a 512x512x16, 4-level texture, SH, and a U-Net of `widths`
+/// (RGBA output), and the mean milliseconds per timed step of each phase.
 pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64, PhaseSeconds) {
     let views: Vec<View> = (0..2).map(|s| synthetic_view(size, s)).collect();
     let cfg = TrainConfig {
@@ -83,11 +83,16 @@ pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64
         ..TrainConfig::preset(Preset::Balanced)
     };
     let mut t = Trainer::new(cfg, &views).expect("synthetic views train");
-    let (min, med) = time_min_median(reps, || {
+    run_for(WARM_SECONDS, 2, || {
+        t.step(&views).expect("step");
+    });
+    t.phase_seconds = PhaseSeconds::default();
+    let warm_steps = t.step;
+    let (min, med) = time_steady(reps, false, || {
         t.step(&views).expect("step");
     });
     let p = t.phase_seconds;
-    let k = 1e3 / t.step.max(1) as f64;
+    let k = 1e3 / (t.step - warm_steps).max(1) as f64;
     let per_step = PhaseSeconds {
         features: p.features * k,
         forward: p.forward * k,

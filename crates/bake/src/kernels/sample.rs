@@ -232,16 +232,14 @@ pub fn sample_backward_adam(
         .map(|l| 1usize << l.shift)
         .max()
         .unwrap_or(0);
-    work.into_par_iter().for_each_init(
-        // Kept all zero / false between tasks: each task clears what it set.
-        || {
-            (
-                vec![0.0f64; max_band * c],
-                vec![false; max_band],
-                vec![0.0f32; c],
-            )
-        },
-        |(g, hit, g32), (k, b, mut blk)| {
+    work.into_par_iter().for_each(|(k, b, mut blk)| {
+        BAND_SCRATCH.with_borrow_mut(|(g, hit, g32)| {
+            // Kept all zero / false between tasks: each task clears what it set.
+            if hit.len() < max_band || g32.len() != c {
+                *g = vec![0.0f64; max_band * c];
+                *hit = vec![false; max_band];
+                *g32 = vec![0.0f32; c];
+            }
             let rows = blk.len();
             let (g, hit) = (&mut g[..rows * c], &mut hit[..rows]);
             gather.band(k, b, g, hit);
@@ -256,9 +254,17 @@ pub fn sample_backward_adam(
                     *h = false;
                 }
             }
-        },
-    );
+        })
+    });
     Ok(())
+}
+
+thread_local! {
+    /// Per-thread band accumulator, hit marks and f32 row of [`sample_backward_adam`], kept
+    /// across calls (half a megabyte at 16 channels: allocating it per task meant fresh,
+    /// page-faulting memory at every step until the allocator's thresholds settled).
+    static BAND_SCRATCH: std::cell::RefCell<(Vec<f64>, Vec<bool>, Vec<f32>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
 }
 
 /// Covered pixels per task of the forward and of the bucketing (fixed, so the work split

@@ -24,7 +24,8 @@ enum What {
     /// 128/256 (training) and 256/512 (inference), with GFLOP/s as a fraction of the sgemm
     /// peak measured in the same run.
     Train {
-        /// Timed repetitions per row (the minimum is reported).
+        /// Timed repetitions per row, at least (each row also runs for at least 3 s after 1 s of
+        /// warm-up, as the PyTorch reference does; the minimum and median are reported).
         #[arg(long, default_value_t = 5)]
         reps: usize,
         /// Python with torch installed: also time the PyTorch reference
