@@ -43,6 +43,10 @@ struct StepConsts {
 }
 
 impl StepConsts {
+    /// Never inlined: LLVM may expand `powi` inline at one call site and call the library at
+    /// another, and the two can differ in the last bit; one copy gives every optimiser (dense,
+    /// fused, sparse) the same constants.
+    #[inline(never)]
     fn new(cfg: &AdamConfig, t: u64) -> Self {
         let t = t.min(i32::MAX as u64) as i32;
         StepConsts {

@@ -11,6 +11,7 @@ pub mod dense;
 pub mod loss;
 pub mod mlp;
 pub mod norm;
+pub mod prefetch;
 pub mod sample;
 pub mod sh;
 pub mod unet;

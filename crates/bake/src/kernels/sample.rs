@@ -29,6 +29,7 @@ use dnr_runtime::texture::{
 use rayon::prelude::*;
 
 use super::adam::SparseAdam;
+use super::prefetch::prefetch;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
 pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
@@ -502,7 +503,9 @@ fn level_taps(
 }
 
 /// [`level_taps`] with an accumulator, for a channel count known at compile time (the sum
-/// stays in registers across the taps).
+/// stays in registers across the taps). The taps of the whole chunk come first, so the blend
+/// can prefetch the texels of the pixel [`PREFETCH_AHEAD`] places on: the finest levels are
+/// far larger than the caches and each pixel's four texels are scattered lines.
 #[inline]
 fn level_taps_n<const C: usize>(
     level: &Level,
@@ -512,26 +515,43 @@ fn level_taps_n<const C: usize>(
     px: &[u32],
     acc: &mut [f32],
 ) -> Vec<Tap4> {
-    px.iter()
-        .zip(acc.chunks_exact_mut(C))
-        .map(|(&p, a)| {
+    let all: Vec<Tap4> = px
+        .iter()
+        .map(|&p| {
             let [u, v] = uv[p as usize];
-            let tp = taps(level.width, level.height, ws, wt, u, v);
-            if let Some(tp) = tp {
-                let a: &mut [f32; C] = a.try_into().expect("C values");
-                let mut s = *a;
-                for (t, w) in tp {
-                    let x: [f32; C] = level.data[t * C..(t + 1) * C].try_into().expect("C values");
-                    for (o, x) in s.iter_mut().zip(x) {
-                        *o += w * x;
-                    }
-                }
-                *a = s;
-            }
-            tap4(tp)
+            tap4(taps(level.width, level.height, ws, wt, u, v))
         })
-        .collect()
+        .collect();
+    for (i, (t, a)) in all.iter().zip(acc.chunks_exact_mut(C)).enumerate() {
+        if let Some(next) = all.get(i + PREFETCH_AHEAD) {
+            for &tx in &next.texel {
+                // First and last value: a texel need not start on a cache line.
+                prefetch(&level.data, tx as usize * C);
+                prefetch(&level.data, tx as usize * C + C - 1);
+            }
+        }
+        // All weights zero: no taps (bilinear weights of real taps sum to one).
+        if t.weight == [0.0; 4] {
+            continue;
+        }
+        let a: &mut [f32; C] = a.try_into().expect("C values");
+        let mut s = *a;
+        for (&tx, &w) in t.texel.iter().zip(&t.weight) {
+            let tx = tx as usize;
+            let x: [f32; C] = level.data[tx * C..(tx + 1) * C]
+                .try_into()
+                .expect("C values");
+            for (o, x) in s.iter_mut().zip(x) {
+                *o += w * x;
+            }
+        }
+        *a = s;
+    }
+    all
 }
+
+/// Pixels ahead whose texels [`level_taps_n`] prefetches.
+const PREFETCH_AHEAD: usize = 8;
 
 /// The record of [`taps`]' result; all weights zero (never scattered) without taps, which
 /// active pixels (finite uv, non-empty levels) always have.
