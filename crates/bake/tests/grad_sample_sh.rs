@@ -9,9 +9,14 @@
 // Index loops mirror the math (pixel i, channel c) and compare several arrays at once.
 #![allow(clippy::needless_range_loop)]
 
-use dnr_bake::kernels::sample::{sample_backward, sample_backward_serial, sample_forward};
+use dnr_bake::kernels::adam::{AdamConfig, SparseAdam};
+use dnr_bake::kernels::sample::{
+    sample_backward, sample_backward_adam, sample_backward_serial, sample_forward,
+    sample_forward_taps,
+};
 use dnr_bake::kernels::sh::{modulate_backward, modulate_forward};
 use dnr_runtime::gbuffer::GBuffer;
+use dnr_runtime::nn::gemm::set_force_scalar;
 use dnr_runtime::texture::{Level, Pyramid, Wrap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -272,6 +277,67 @@ fn sample_backward_is_bit_identical_across_runs_and_thread_counts() {
     for threads in [1, 2, 3, 4] {
         assert_eq!(run(threads), reference, "{threads} threads");
     }
+}
+
+#[test]
+fn fused_scatter_and_adam_equal_the_separate_passes_bit_for_bit() {
+    // Training's pair (forward keeping the taps; scatter fused with lazy Adam) against the
+    // plain sampler, the parallel scatter into zeroed gradients and SparseAdam::step on the
+    // touched rows: two steps, on the SIMD path and on the forced baseline path.
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let pyr0 = pyramid(
+        &mut rng,
+        16,
+        &[(300, 200), (150, 100), (75, 50)],
+        Wrap::Repeat,
+        Wrap::MirroredRepeat,
+    );
+    let (w, h) = (83, 59);
+    let views: Vec<GBuffer> = (0..2).map(|_| gbuffer(&mut rng, w, h)).collect();
+    let ups: Vec<Vec<f32>> = (0..2).map(|_| random_vec(&mut rng, 16 * w * h)).collect();
+    let cfg = AdamConfig {
+        lr: 0.01,
+        ..AdamConfig::default()
+    };
+    let decay = [0.0, 1e-3, 4e-3];
+    let adams = |p: &Pyramid| -> Vec<SparseAdam> {
+        p.levels
+            .iter()
+            .map(|l| SparseAdam::new(l.width * l.height, 16, cfg))
+            .collect()
+    };
+    let fused = || {
+        let (mut p, mut opts) = (pyr0.clone(), adams(&pyr0));
+        for (g, up) in views.iter().zip(&ups) {
+            let mut out = vec![0.0; 16 * w * h];
+            let taps = sample_forward_taps(&p, g, &mut out).unwrap();
+            let mut plain = vec![0.0; 16 * w * h];
+            sample_forward(&p, g, &mut plain).unwrap();
+            assert_eq!(out, plain, "the forward that keeps its taps is the sampler");
+            sample_backward_adam(&taps, &mut p, up, &mut opts, &decay).unwrap();
+        }
+        p
+    };
+    let (mut p, mut opts) = (pyr0.clone(), adams(&pyr0));
+    for (g, up) in views.iter().zip(&ups) {
+        let mut grads: Vec<Vec<f32>> = p.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
+        let touched = sample_backward(&p, g, up, &mut grads).unwrap();
+        for (k, l) in p.levels.iter_mut().enumerate() {
+            opts[k].step(&mut l.data, &mut grads[k], &touched[k], decay[k]);
+        }
+    }
+    let bits = |p: &Pyramid| -> Vec<u32> {
+        p.levels
+            .iter()
+            .flat_map(|l| l.data.iter().map(|x| x.to_bits()))
+            .collect()
+    };
+    assert_ne!(bits(&p), bits(&pyr0), "the steps changed the texture");
+    assert_eq!(bits(&fused()), bits(&p), "fused, SIMD path");
+    set_force_scalar(true);
+    let scalar = fused();
+    set_force_scalar(false);
+    assert_eq!(bits(&scalar), bits(&p), "fused, baseline path");
 }
 
 #[test]

@@ -59,7 +59,7 @@ impl StepConsts {
     }
 
     /// One Adam update of a single value (PyTorch's order of operations).
-    #[inline]
+    #[inline(always)]
     fn update(&self, p: &mut f32, g: f32, m: &mut f32, v: &mut f32) {
         *m = self.beta1 * *m + (1.0 - self.beta1) * g;
         *v = self.beta2 * *v + (1.0 - self.beta2) * g * g;
@@ -300,7 +300,7 @@ impl SparseAdamRows<'_> {
     /// One lazy-Adam step of the block's row `row` from its gradient `grad` (`width` values),
     /// with `decay * param` added to the gradient first: exactly what [`SparseAdam::step`]
     /// does to a listed row (the gradient is not cleared here).
-    #[inline]
+    #[inline(always)]
     pub fn update(&mut self, row: usize, grad: &[f32], decay: f32) {
         let w = self.width;
         assert_eq!(grad.len(), w, "sparse adam: gradient row");

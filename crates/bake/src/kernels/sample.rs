@@ -28,8 +28,10 @@ use dnr_runtime::texture::{
 };
 use rayon::prelude::*;
 
-use super::adam::SparseAdam;
+use super::adam::{SparseAdam, SparseAdamRows};
 use super::prefetch::prefetch;
+#[cfg(target_arch = "x86_64")]
+use dnr_runtime::nn::gemm::{simd_level, SimdLevel};
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
 pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
@@ -243,21 +245,75 @@ pub fn sample_backward_adam(
             }
             let rows = blk.len();
             let (g, hit) = (&mut g[..rows * c], &mut hit[..rows]);
-            gather.band(k, b, g, hit);
-            for (i, h) in hit.iter_mut().enumerate() {
-                if *h {
-                    let gi = &mut g[i * c..(i + 1) * c];
-                    for (o, a) in g32.iter_mut().zip(gi.iter()) {
-                        *o = *a as f32;
-                    }
-                    blk.update(i, g32, decay[k]);
-                    gi.fill(0.0);
-                    *h = false;
-                }
+            let task = BandTask {
+                gather: &gather,
+                k,
+                b,
+                decay: decay[k],
+            };
+            // The runtime's instruction-set switch: tests force the baseline path with it.
+            #[cfg(target_arch = "x86_64")]
+            if simd_level() >= SimdLevel::Avx2 {
+                // SAFETY: the level is AVX2 or above only when the CPU reports AVX2, the only
+                // requirement of `run_avx2`.
+                #[allow(unsafe_code)]
+                unsafe {
+                    task.run_avx2(&mut blk, g, hit, g32)
+                };
+                return;
             }
+            task.run(&mut blk, g, hit, g32);
         })
     });
     Ok(())
+}
+
+/// One texel band's scatter and lazy-Adam update (see [`sample_backward_adam`]).
+struct BandTask<'a, 'g> {
+    gather: &'a Gather<'g>,
+    k: usize,
+    b: usize,
+    decay: f32,
+}
+
+impl BandTask<'_, '_> {
+    /// Scatters the band's taps into `g` (its texels, `[texel][C]` in f64, all zero on entry)
+    /// marking `hit`, then updates every hit row and clears what it set.
+    #[inline(always)]
+    fn run(&self, blk: &mut SparseAdamRows<'_>, g: &mut [f64], hit: &mut [bool], g32: &mut [f32]) {
+        let c = g32.len();
+        self.gather.band(self.k, self.b, g, hit);
+        for (i, h) in hit.iter_mut().enumerate() {
+            if *h {
+                let gi = &mut g[i * c..(i + 1) * c];
+                for (o, a) in g32.iter_mut().zip(gi.iter()) {
+                    *o = *a as f32;
+                }
+                blk.update(i, g32, self.decay);
+                gi.fill(0.0);
+                *h = false;
+            }
+        }
+    }
+
+    /// [`Self::run`] compiled for AVX2: the f64 sums and the Adam arithmetic in 4- and
+    /// 8-lane vectors instead of baseline x86-64's 2 and 4 (the same operations in the same
+    /// order, so the same bits).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    unsafe fn run_avx2(
+        &self,
+        blk: &mut SparseAdamRows<'_>,
+        g: &mut [f64],
+        hit: &mut [bool],
+        g32: &mut [f32],
+    ) {
+        self.run(blk, g, hit, g32);
+    }
 }
 
 thread_local! {
@@ -578,6 +634,8 @@ impl Gather<'_> {
     /// texels, `[texel][C]`) in pixel order, then tap order, and marks the texels hit.
     /// Accumulates in `f64`: a texel of a large level seen by many pixels sums millions of
     /// terms, where an `f32` running sum loses several percent (tested in `tests/stress.rs`).
+    /// Always inlined (as are the helpers), so [`BandTask::run_avx2`] compiles it for AVX2.
+    #[inline(always)]
     fn band(&self, k: usize, b: usize, g: &mut [f64], hit: &mut [bool]) {
         match self.vt.channels {
             16 => self.band_n::<16>(k, b, g, hit),
@@ -594,7 +652,7 @@ impl Gather<'_> {
     }
 
     /// [`Gather::band`] for a channel count known at compile time.
-    #[inline]
+    #[inline(always)]
     fn band_n<const C: usize>(&self, k: usize, b: usize, g: &mut [f64], hit: &mut [bool]) {
         self.each_tap(k, b, hit, |local, w, p| {
             // Copies in and out, so the compiler sees no aliasing and uses vector registers.
