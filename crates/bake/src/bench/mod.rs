@@ -308,7 +308,7 @@ impl fmt::Display for BenchReport {
         }
         writeln!(
             f,
-            "\nWhole step by phase (mean ms per step): | widths | size | features | forward | backward | texture update | network update |"
+            "\nWhole step by phase (mean ms per timed step): | widths | size | features | forward | backward | feature grads | updates |"
         )?;
         writeln!(f, "| --- | ---: | ---: | ---: | ---: | ---: | ---: |")?;
         for r in &self.rows {
@@ -316,13 +316,7 @@ impl fmt::Display for BenchReport {
                 writeln!(
                     f,
                     "| {:?} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
-                    r.widths,
-                    r.size,
-                    p.features,
-                    p.forward,
-                    p.backward,
-                    p.texture_update,
-                    p.network_update
+                    r.widths, r.size, p.features, p.forward, p.backward, p.feature_grads, p.updates
                 )?;
             }
         }

@@ -97,8 +97,8 @@ pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64
         features: p.features * k,
         forward: p.forward * k,
         backward: p.backward * k,
-        texture_update: p.texture_update * k,
-        network_update: p.network_update * k,
+        feature_grads: p.feature_grads * k,
+        updates: p.updates * k,
     };
     (1e3 * min, 1e3 * med, per_step)
 }

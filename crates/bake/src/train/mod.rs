@@ -166,16 +166,17 @@ pub struct PhaseSeconds {
     pub forward: f64,
     /// Renderer backward to the feature image.
     pub backward: f64,
-    /// SH backward, mean-colour loss, texture scatter and its sparse Adam.
-    pub texture_update: f64,
-    /// Adam on the renderer's weights (and pruned channels held at zero).
-    pub network_update: f64,
+    /// SH backward and mean-colour loss on the feature image's gradient.
+    pub feature_grads: f64,
+    /// Texture scatter with its sparse Adam, and Adam on the renderer's weights, side by
+    /// side (and pruned channels held at zero).
+    pub updates: f64,
 }
 
 impl PhaseSeconds {
     /// Sum of the phases.
     pub fn total(&self) -> f64 {
-        self.features + self.forward + self.backward + self.texture_update + self.network_update
+        self.features + self.forward + self.backward + self.feature_grads + self.updates
     }
 }
 
@@ -509,6 +510,7 @@ impl Trainer {
             );
         }
         x.recycle();
+        lap(&mut t, &mut ph.feature_grads);
 
         // Texture: scatter into the levels fused with lazy Adam on the touched texels only.
         let k_total = self.pyr.levels.len();
@@ -519,21 +521,27 @@ impl Trainer {
             .enumerate()
             .map(|(k, lvl)| 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32)
             .collect();
-        sample_backward_adam(&taps, &mut self.pyr, &dx.data, &mut self.tex_adam, &decay)
-            .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        // The texture's and the network's updates are independent: side by side (the texel
+        // scatter waits on memory, the dense Adam streams it).
+        let (pyr, tex_adam, net) = (&mut self.pyr, &mut self.tex_adam, &mut self.net);
+        let (tex, ()) = rayon::join(
+            || sample_backward_adam(&taps, pyr, &dx.data, tex_adam, &decay),
+            || {
+                if let Some((weights, grads, adam)) = net.params_mut() {
+                    for ((wt, g), a) in weights
+                        .iter_mut()
+                        .zip(grads.iter_mut())
+                        .zip(adam.iter_mut())
+                    {
+                        a.step_zero_grad(wt, g);
+                    }
+                }
+            },
+        );
+        tex.map_err(|e| TrainError::Kernel(e.to_string()))?;
         dx.recycle();
-        lap(&mut t, &mut ph.texture_update);
-        if let Some((weights, grads, adam)) = self.net.params_mut() {
-            for ((wt, g), a) in weights
-                .iter_mut()
-                .zip(grads.iter_mut())
-                .zip(adam.iter_mut())
-            {
-                a.step_zero_grad(wt, g);
-            }
-        }
         self.zero_frozen();
-        lap(&mut t, &mut ph.network_update);
+        lap(&mut t, &mut ph.updates);
         self.phase_seconds = ph;
         self.step += 1;
         self.loss_sum += loss;

@@ -145,6 +145,17 @@ impl PackedA {
                 .enumerate()
                 .for_each(|(t, panel)| {
                     let r = &rows[t * MR..(t * MR + MR).min(m)];
+                    if let Ok(r) = <[usize; MR]>::try_from(r) {
+                        // A full panel: fixed-size rows, so the copy unrolls.
+                        for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
+                            let dst: &mut [f32; MR] = dst.try_into().expect("MR values");
+                            for (d, &ro) in dst.iter_mut().zip(&r) {
+                                // SAFETY: as below.
+                                *d = unsafe { *w.get_unchecked(ro + c) };
+                            }
+                        }
+                        return;
+                    }
                     for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
                         for (d, &ro) in dst.iter_mut().zip(r) {
                             // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is below

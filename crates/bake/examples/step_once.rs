@@ -1,0 +1,14 @@
+fn main() {
+    let size: usize = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(128);
+    let reps: usize = std::env::args()
+        .nth(2)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(9);
+    println!(
+        "{:?}",
+        dnr_bake::bench::step::bench_trainer_step(&[16, 32, 64, 128, 128], size, reps)
+    );
+}
