@@ -290,22 +290,20 @@ impl Progress {
     }
 
     pub fn on_step(&self, t: &Trainer, secs: f64) {
+        // Before the first evaluation there is no held-out figure to show.
+        let psnr = self.last_psnr.get();
+        let held_out = if psnr.is_nan() {
+            String::from("held-out: first evaluation pending")
+        } else {
+            format!("held-out {psnr:.2} dB")
+        };
         if let Some(b) = &self.bar {
             b.set_position(if self.by_time { secs as u64 } else { t.step });
-            b.set_message(format!(
-                "step {} | held-out {:.2} dB",
-                t.step,
-                self.last_psnr.get()
-            ));
+            b.set_message(format!("step {} | {held_out}", t.step));
         }
         if self.enabled && self.plain && secs - self.last_line.get() >= 10.0 {
             self.last_line.set(secs);
-            eprintln!(
-                "step {} | {:.0} s | held-out {:.2} dB",
-                t.step,
-                secs,
-                self.last_psnr.get()
-            );
+            eprintln!("step {} | {secs:.0} s | {held_out}", t.step);
         }
     }
 
