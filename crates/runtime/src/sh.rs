@@ -158,12 +158,35 @@ pub fn modulate(
     features[first_channel * pixels..(first_channel + n) * pixels]
         .par_chunks_mut(pixels)
         .enumerate()
-        .for_each(|(j, plane)| {
-            for ((f, &d), &c) in plane.iter_mut().zip(view_dir).zip(coverage) {
-                if c != 0.0 {
-                    *f *= sh_component(j, d);
-                }
-            }
+        .for_each(|(j, plane)| match j {
+            0 => modulate_plane::<0>(plane, view_dir, coverage),
+            1 => modulate_plane::<1>(plane, view_dir, coverage),
+            2 => modulate_plane::<2>(plane, view_dir, coverage),
+            3 => modulate_plane::<3>(plane, view_dir, coverage),
+            4 => modulate_plane::<4>(plane, view_dir, coverage),
+            5 => modulate_plane::<5>(plane, view_dir, coverage),
+            6 => modulate_plane::<6>(plane, view_dir, coverage),
+            7 => modulate_plane::<7>(plane, view_dir, coverage),
+            8 => modulate_plane::<8>(plane, view_dir, coverage),
+            9 => modulate_plane::<9>(plane, view_dir, coverage),
+            10 => modulate_plane::<10>(plane, view_dir, coverage),
+            11 => modulate_plane::<11>(plane, view_dir, coverage),
+            12 => modulate_plane::<12>(plane, view_dir, coverage),
+            13 => modulate_plane::<13>(plane, view_dir, coverage),
+            14 => modulate_plane::<14>(plane, view_dir, coverage),
+            15 => modulate_plane::<15>(plane, view_dir, coverage),
+            _ => modulate_plane::<16>(plane, view_dir, coverage),
         });
     Ok(())
+}
+
+/// One feature plane times basis function `J` at covered pixels. `J` is a constant so the
+/// basis' `match` folds away and the loop is branch-free (a select): the per-pixel `match`
+/// and branch made modulation a few percent of a training step.
+#[inline]
+fn modulate_plane<const J: usize>(plane: &mut [f32], view_dir: &[[f32; 3]], coverage: &[f32]) {
+    for ((f, &d), &c) in plane.iter_mut().zip(view_dir).zip(coverage) {
+        let m = *f * sh_component(J, d);
+        *f = if c != 0.0 { m } else { *f };
+    }
 }

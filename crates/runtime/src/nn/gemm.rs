@@ -35,8 +35,7 @@ const NC: usize = 256;
 /// Rows of A per block of [`gemm_nn`] (MC x KC floats, in L2).
 const MC: usize = 72;
 /// A rows per micro-tile of [`gemm_nt`] (at most; AVX2 and scalar use 4 x 3 tiles, AVX-512
-/// 8 x 2: each B vector is reused 8 times, which keeps the B stream from L2 at ~16 bytes per
-/// cycle).
+/// 8 x 3: each B vector is reused 8 times and each A vector 3 times, 11 loads per 24 FMAs).
 const RT: usize = 8;
 /// B rows per micro-tile of [`gemm_nt`].
 const CT: usize = 3;
@@ -638,9 +637,10 @@ impl NtCtx<'_> {
         let mut out = [[0.0f32; CT]; RT];
         let mut ao = [0usize; RT];
         let mut bo = [0usize; CT];
-        // AVX-512: 8 x 2 tiles (16 accumulators; 8 x 3 makes LLVM spill them); else 4 x 3.
+        let mut next = [0usize; CT];
+        // AVX-512: 8 x 3 tiles (24 accumulators, 11 loads per 24 FMAs); else 4 x 3.
         let (rt, ct) = if self.level == SimdLevel::Avx512 {
-            (RT, 2)
+            (RT, 3)
         } else {
             (4, CT)
         };
@@ -657,7 +657,13 @@ impl NtCtx<'_> {
                     for (cc, o) in bo.iter_mut().enumerate().take(cv) {
                         *o = self.b_rows[blk.j0 + c0 + cc] + k0;
                     }
-                    self.kernel(rv, cv, kc, &ao[..rv], &bo[..cv], &mut out);
+                    // The next tile's B rows (or the first's, for the next row tile): the
+                    // kernel prefetches them, a cache line per step.
+                    let c1 = if c0 + ct < width { c0 + ct } else { 0 };
+                    for (cc, o) in next.iter_mut().enumerate() {
+                        *o = self.b_rows[blk.j0 + (c1 + cc).min(width - 1)] + k0;
+                    }
+                    self.kernel(rv, cv, kc, &ao[..rv], &bo[..cv], &next, &mut out);
                     for (row, o) in blk.rows[r0..r0 + rv].iter_mut().zip(&out) {
                         for (d, v) in row[c0..c0 + cv].iter_mut().zip(o) {
                             *d += v;
@@ -668,7 +674,9 @@ impl NtCtx<'_> {
         }
     }
 
-    /// `ao`/`bo` are row offsets plus the K-block start `k0`, with `k0 + kc <= self.k`.
+    /// `ao`/`bo` are row offsets plus the K-block start `k0`, with `k0 + kc <= self.k`;
+    /// `next` the next tile's B offsets, to prefetch.
+    #[allow(clippy::too_many_arguments)]
     fn kernel(
         &self,
         rv: usize,
@@ -676,6 +684,7 @@ impl NtCtx<'_> {
         kc: usize,
         ao: &[usize],
         bo: &[usize],
+        next: &[usize; CT],
         out: &mut [[f32; CT]; RT],
     ) {
         // gemm_nt checked `row + k <= len` for every row; offsets are `row + k0` with
@@ -693,30 +702,30 @@ impl NtCtx<'_> {
             // `ao`/`bo` hold `rv`/`cv` entries.
             unsafe {
                 match (rv, cv) {
-                    (8, 3) => avx512::kernel_nt::<8, 3>(kc, a, ao, b, bo, out),
-                    (8, 2) => avx512::kernel_nt::<8, 2>(kc, a, ao, b, bo, out),
-                    (8, 1) => avx512::kernel_nt::<8, 1>(kc, a, ao, b, bo, out),
-                    (7, 3) => avx512::kernel_nt::<7, 3>(kc, a, ao, b, bo, out),
-                    (7, 2) => avx512::kernel_nt::<7, 2>(kc, a, ao, b, bo, out),
-                    (7, 1) => avx512::kernel_nt::<7, 1>(kc, a, ao, b, bo, out),
-                    (6, 3) => avx512::kernel_nt::<6, 3>(kc, a, ao, b, bo, out),
-                    (6, 2) => avx512::kernel_nt::<6, 2>(kc, a, ao, b, bo, out),
-                    (6, 1) => avx512::kernel_nt::<6, 1>(kc, a, ao, b, bo, out),
-                    (5, 3) => avx512::kernel_nt::<5, 3>(kc, a, ao, b, bo, out),
-                    (5, 2) => avx512::kernel_nt::<5, 2>(kc, a, ao, b, bo, out),
-                    (5, 1) => avx512::kernel_nt::<5, 1>(kc, a, ao, b, bo, out),
-                    (4, 3) => avx512::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
-                    (4, 2) => avx512::kernel_nt::<4, 2>(kc, a, ao, b, bo, out),
-                    (4, 1) => avx512::kernel_nt::<4, 1>(kc, a, ao, b, bo, out),
-                    (3, 3) => avx512::kernel_nt::<3, 3>(kc, a, ao, b, bo, out),
-                    (3, 2) => avx512::kernel_nt::<3, 2>(kc, a, ao, b, bo, out),
-                    (3, 1) => avx512::kernel_nt::<3, 1>(kc, a, ao, b, bo, out),
-                    (2, 3) => avx512::kernel_nt::<2, 3>(kc, a, ao, b, bo, out),
-                    (2, 2) => avx512::kernel_nt::<2, 2>(kc, a, ao, b, bo, out),
-                    (2, 1) => avx512::kernel_nt::<2, 1>(kc, a, ao, b, bo, out),
-                    (1, 3) => avx512::kernel_nt::<1, 3>(kc, a, ao, b, bo, out),
-                    (1, 2) => avx512::kernel_nt::<1, 2>(kc, a, ao, b, bo, out),
-                    _ => avx512::kernel_nt::<1, 1>(kc, a, ao, b, bo, out),
+                    (8, 3) => avx512::kernel_nt::<8, 3>(kc, a, ao, b, bo, next, out),
+                    (8, 2) => avx512::kernel_nt::<8, 2>(kc, a, ao, b, bo, next, out),
+                    (8, 1) => avx512::kernel_nt::<8, 1>(kc, a, ao, b, bo, next, out),
+                    (7, 3) => avx512::kernel_nt::<7, 3>(kc, a, ao, b, bo, next, out),
+                    (7, 2) => avx512::kernel_nt::<7, 2>(kc, a, ao, b, bo, next, out),
+                    (7, 1) => avx512::kernel_nt::<7, 1>(kc, a, ao, b, bo, next, out),
+                    (6, 3) => avx512::kernel_nt::<6, 3>(kc, a, ao, b, bo, next, out),
+                    (6, 2) => avx512::kernel_nt::<6, 2>(kc, a, ao, b, bo, next, out),
+                    (6, 1) => avx512::kernel_nt::<6, 1>(kc, a, ao, b, bo, next, out),
+                    (5, 3) => avx512::kernel_nt::<5, 3>(kc, a, ao, b, bo, next, out),
+                    (5, 2) => avx512::kernel_nt::<5, 2>(kc, a, ao, b, bo, next, out),
+                    (5, 1) => avx512::kernel_nt::<5, 1>(kc, a, ao, b, bo, next, out),
+                    (4, 3) => avx512::kernel_nt::<4, 3>(kc, a, ao, b, bo, next, out),
+                    (4, 2) => avx512::kernel_nt::<4, 2>(kc, a, ao, b, bo, next, out),
+                    (4, 1) => avx512::kernel_nt::<4, 1>(kc, a, ao, b, bo, next, out),
+                    (3, 3) => avx512::kernel_nt::<3, 3>(kc, a, ao, b, bo, next, out),
+                    (3, 2) => avx512::kernel_nt::<3, 2>(kc, a, ao, b, bo, next, out),
+                    (3, 1) => avx512::kernel_nt::<3, 1>(kc, a, ao, b, bo, next, out),
+                    (2, 3) => avx512::kernel_nt::<2, 3>(kc, a, ao, b, bo, next, out),
+                    (2, 2) => avx512::kernel_nt::<2, 2>(kc, a, ao, b, bo, next, out),
+                    (2, 1) => avx512::kernel_nt::<2, 1>(kc, a, ao, b, bo, next, out),
+                    (1, 3) => avx512::kernel_nt::<1, 3>(kc, a, ao, b, bo, next, out),
+                    (1, 2) => avx512::kernel_nt::<1, 2>(kc, a, ao, b, bo, next, out),
+                    _ => avx512::kernel_nt::<1, 1>(kc, a, ao, b, bo, next, out),
                 }
             }
             return;
@@ -729,18 +738,18 @@ impl NtCtx<'_> {
             // `ao`/`bo` hold `rv`/`cv` entries.
             unsafe {
                 match (rv, cv) {
-                    (4, 3) => avx2::kernel_nt::<4, 3>(kc, a, ao, b, bo, out),
-                    (4, 2) => avx2::kernel_nt::<4, 2>(kc, a, ao, b, bo, out),
-                    (4, 1) => avx2::kernel_nt::<4, 1>(kc, a, ao, b, bo, out),
-                    (3, 3) => avx2::kernel_nt::<3, 3>(kc, a, ao, b, bo, out),
-                    (3, 2) => avx2::kernel_nt::<3, 2>(kc, a, ao, b, bo, out),
-                    (3, 1) => avx2::kernel_nt::<3, 1>(kc, a, ao, b, bo, out),
-                    (2, 3) => avx2::kernel_nt::<2, 3>(kc, a, ao, b, bo, out),
-                    (2, 2) => avx2::kernel_nt::<2, 2>(kc, a, ao, b, bo, out),
-                    (2, 1) => avx2::kernel_nt::<2, 1>(kc, a, ao, b, bo, out),
-                    (1, 3) => avx2::kernel_nt::<1, 3>(kc, a, ao, b, bo, out),
-                    (1, 2) => avx2::kernel_nt::<1, 2>(kc, a, ao, b, bo, out),
-                    _ => avx2::kernel_nt::<1, 1>(kc, a, ao, b, bo, out),
+                    (4, 3) => avx2::kernel_nt::<4, 3>(kc, a, ao, b, bo, next, out),
+                    (4, 2) => avx2::kernel_nt::<4, 2>(kc, a, ao, b, bo, next, out),
+                    (4, 1) => avx2::kernel_nt::<4, 1>(kc, a, ao, b, bo, next, out),
+                    (3, 3) => avx2::kernel_nt::<3, 3>(kc, a, ao, b, bo, next, out),
+                    (3, 2) => avx2::kernel_nt::<3, 2>(kc, a, ao, b, bo, next, out),
+                    (3, 1) => avx2::kernel_nt::<3, 1>(kc, a, ao, b, bo, next, out),
+                    (2, 3) => avx2::kernel_nt::<2, 3>(kc, a, ao, b, bo, next, out),
+                    (2, 2) => avx2::kernel_nt::<2, 2>(kc, a, ao, b, bo, next, out),
+                    (2, 1) => avx2::kernel_nt::<2, 1>(kc, a, ao, b, bo, next, out),
+                    (1, 3) => avx2::kernel_nt::<1, 3>(kc, a, ao, b, bo, next, out),
+                    (1, 2) => avx2::kernel_nt::<1, 2>(kc, a, ao, b, bo, next, out),
+                    _ => avx2::kernel_nt::<1, 1>(kc, a, ao, b, bo, next, out),
                 }
             }
             return;
@@ -843,7 +852,9 @@ mod avx2 {
         }
     }
 
-    /// `out[r][c] = sum_{k < kc} a[ao[r] + k] * b[bo[c] + k]` for `r < R`, `c < C`.
+    /// `out[r][c] = sum_{k < kc} a[ao[r] + k] * b[bo[c] + k]` for `r < R`, `c < C`, while
+    /// prefetching the rows at `next` (the next tile's B rows: they come from L2 or memory,
+    /// and without it the first loads of each new row stall the tile).
     ///
     /// # Safety
     /// The CPU must support AVX2 and FMA; `ao.len() >= R`, `bo.len() >= C`,
@@ -855,9 +866,15 @@ mod avx2 {
         ao: &[usize],
         b: &[f32],
         bo: &[usize],
+        next: &[usize; CT],
         out: &mut [[f32; CT]; RT],
     ) {
         let mut acc = [[_mm256_setzero_ps(); C]; R];
+        // Prefetch addresses only (never dereferenced, so wrapping arithmetic).
+        let mut pn = [b.as_ptr(); C];
+        for c in 0..C {
+            pn[c] = b.as_ptr().wrapping_add(next[c]);
+        }
         let mut pa = [a.as_ptr(); R];
         let mut pb = [b.as_ptr(); C];
         for r in 0..R {
@@ -874,6 +891,12 @@ mod avx2 {
             let mut bv = [_mm256_setzero_ps(); C];
             for c in 0..C {
                 bv[c] = _mm256_loadu_ps(pb[c].add(k));
+            }
+            // One cache line of each next B row every other step.
+            if k % 16 == 0 {
+                for p in &pn {
+                    _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(k) as *const i8);
+                }
             }
             for r in 0..R {
                 let av = _mm256_loadu_ps(pa[r].add(k));
@@ -967,7 +990,7 @@ mod avx512 {
     }
 
     /// `out[r][c] = sum_{k < kc} a[ao[r] + k] * b[bo[c] + k]` for `r < R`, `c < C`, 16 k at a
-    /// time with a masked last step.
+    /// time with a masked last step, prefetching the rows at `next` as the AVX2 kernel.
     ///
     /// # Safety
     /// The CPU must support AVX-512F; `ao.len() >= R`, `bo.len() >= C`,
@@ -979,9 +1002,15 @@ mod avx512 {
         ao: &[usize],
         b: &[f32],
         bo: &[usize],
+        next: &[usize; CT],
         out: &mut [[f32; CT]; RT],
     ) {
         let mut acc = [[_mm512_setzero_ps(); C]; R];
+        // Prefetch addresses only (never dereferenced, so wrapping arithmetic).
+        let mut pn = [b.as_ptr(); C];
+        for c in 0..C {
+            pn[c] = b.as_ptr().wrapping_add(next[c]);
+        }
         let mut pa = [a.as_ptr(); R];
         let mut pb = [b.as_ptr(); C];
         for r in 0..R {
@@ -998,6 +1027,7 @@ mod avx512 {
             let mut bv = [_mm512_setzero_ps(); C];
             for c in 0..C {
                 bv[c] = _mm512_loadu_ps(pb[c].add(k));
+                _mm_prefetch::<_MM_HINT_T0>(pn[c].wrapping_add(k) as *const i8);
             }
             for r in 0..R {
                 let av = _mm512_loadu_ps(pa[r].add(k));
@@ -1008,23 +1038,75 @@ mod avx512 {
             k += 16;
         }
         if k < kc {
-            // SAFETY: masked-off lanes are not read, so only `k..kc` is touched.
+            // SAFETY: masked-off lanes are not read, so only `k..kc` is touched. Same register
+            // use as the main loop (B in registers, A a row at a time).
             let mask: __mmask16 = ((1u32 << (kc - k)) - 1) as __mmask16;
-            let mut av = [_mm512_setzero_ps(); R];
-            for r in 0..R {
-                av[r] = _mm512_maskz_loadu_ps(mask, pa[r].add(k));
-            }
+            let mut bv = [_mm512_setzero_ps(); C];
             for c in 0..C {
-                let bv = _mm512_maskz_loadu_ps(mask, pb[c].add(k));
-                for r in 0..R {
-                    acc[r][c] = _mm512_fmadd_ps(av[r], bv, acc[r][c]);
+                bv[c] = _mm512_maskz_loadu_ps(mask, pb[c].add(k));
+            }
+            for r in 0..R {
+                let av = _mm512_maskz_loadu_ps(mask, pa[r].add(k));
+                for c in 0..C {
+                    acc[r][c] = _mm512_fmadd_ps(av, bv[c], acc[r][c]);
                 }
             }
         }
-        for r in 0..R {
-            for c in 0..C {
-                out[r][c] = _mm512_reduce_add_ps(acc[r][c]);
+        for c in 0..C {
+            let mut col = [_mm512_setzero_ps(); RT];
+            for r in 0..R {
+                col[r] = acc[r][c];
+            }
+            let sums = reduce8(col);
+            for r in 0..R {
+                out[r][c] = sums[r];
             }
         }
+    }
+
+    /// The lane sums of eight vectors at once (23 shuffles and adds instead of eight separate
+    /// reductions of 8 each, which cost a quarter of a 512-long dot-product tile).
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn reduce8(v: [__m512; RT]) -> [f32; RT] {
+        // Halves: [a.lo + a.hi | b.lo + b.hi], 8-lane partials of a and b.
+        // Macros, not closures: the shuffles must inline into this AVX-512 function.
+        macro_rules! half {
+            ($a:expr, $b:expr) => {
+                _mm512_add_ps(
+                    _mm512_shuffle_f32x4::<0x44>($a, $b),
+                    _mm512_shuffle_f32x4::<0xEE>($a, $b),
+                )
+            };
+        }
+        let (w0, w1, w2, w3) = (
+            half!(v[0], v[1]),
+            half!(v[2], v[3]),
+            half!(v[4], v[5]),
+            half!(v[6], v[7]),
+        );
+        // Quarters: 128-bit lane q holds the 4-lane partial of vector q (x0) or q + 4 (x1).
+        macro_rules! quarter {
+            ($a:expr, $b:expr) => {
+                _mm512_add_ps(
+                    _mm512_shuffle_f32x4::<0x88>($a, $b),
+                    _mm512_shuffle_f32x4::<0xDD>($a, $b),
+                )
+            };
+        }
+        let (x0, x1) = (quarter!(w0, w1), quarter!(w2, w3));
+        // Per 128-bit lane q: [pair sums of x0 (vector q), pair sums of x1 (vector q + 4)].
+        let y = _mm512_add_ps(
+            _mm512_shuffle_ps::<0x88>(x0, x1),
+            _mm512_shuffle_ps::<0xDD>(x0, x1),
+        );
+        // Lane 4q: total of vector q; lane 4q + 2: of vector q + 4.
+        let z = _mm512_add_ps(y, _mm512_shuffle_ps::<0xB1>(y, y));
+        let mut lanes = [0.0f32; 16];
+        _mm512_storeu_ps(lanes.as_mut_ptr(), z);
+        std::array::from_fn(|r| lanes[4 * (r % 4) + 2 * (r / 4)])
     }
 }
