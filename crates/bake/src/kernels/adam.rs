@@ -1,6 +1,7 @@
 //! Adam (PyTorch's formulation, with bias correction) for dense parameter groups, and a lazy
 //! row-sparse variant for neural-texture texels.
 
+use super::prefetch::prefetch;
 use rayon::prelude::*;
 
 /// Adam hyper-parameters.
@@ -27,6 +28,9 @@ impl Default for AdamConfig {
         }
     }
 }
+
+/// Step counts whose Adam constants a [`SparseAdamRows`] keeps.
+const CONSTS_SLOTS: usize = 16;
 
 /// Elements per parallel chunk (fixed, so results do not depend on the thread count).
 const CHUNK: usize = 1 << 14;
@@ -218,7 +222,7 @@ impl SparseAdam {
                 m,
                 v,
                 t,
-                consts: None,
+                consts: [None; CONSTS_SLOTS],
             });
         }
         out
@@ -281,9 +285,10 @@ pub struct SparseAdamRows<'a> {
     m: &'a mut [f32],
     v: &'a mut [f32],
     t: &'a mut [u32],
-    /// The constants of the last step count used: neighbouring rows usually share it, and
-    /// computing them (two `powi`, a square root) costs as much as a row's update.
-    consts: Option<(u32, StepConsts)>,
+    /// The constants of recent step counts, slot `t % CONSTS_SLOTS`: rows touched in the same
+    /// steps share them, and computing them (two `powi`, a square root) costs as much as a
+    /// row's update; a texture's rows interleave a few different counts.
+    consts: [Option<(u32, StepConsts)>; CONSTS_SLOTS],
 }
 
 impl SparseAdamRows<'_> {
@@ -297,6 +302,18 @@ impl SparseAdamRows<'_> {
         self.t.is_empty()
     }
 
+    /// Hints that row `row`'s parameters, moments and step count will be updated soon (both
+    /// ends of each row: rows need not start on a cache line).
+    #[inline(always)]
+    pub fn prefetch(&self, row: usize) {
+        let (lo, hi) = (row * self.width, (row + 1) * self.width);
+        for a in [&*self.params, &*self.m, &*self.v] {
+            prefetch(a, lo);
+            prefetch(a, hi.saturating_sub(1));
+        }
+        prefetch(self.t, row);
+    }
+
     /// One lazy-Adam step of the block's row `row` from its gradient `grad` (`width` values),
     /// with `decay * param` added to the gradient first: exactly what [`SparseAdam::step`]
     /// does to a listed row (the gradient is not cleared here).
@@ -306,11 +323,12 @@ impl SparseAdamRows<'_> {
         assert_eq!(grad.len(), w, "sparse adam: gradient row");
         let t = &mut self.t[row];
         *t += 1;
-        let k = match self.consts {
+        let slot = &mut self.consts[*t as usize % CONSTS_SLOTS];
+        let k = match *slot {
             Some((tc, k)) if tc == *t => k,
             _ => {
                 let k = StepConsts::new(&self.cfg, u64::from(*t));
-                self.consts = Some((*t, k));
+                *slot = Some((*t, k));
                 k
             }
         };

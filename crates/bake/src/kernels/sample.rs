@@ -236,7 +236,7 @@ pub fn sample_backward_adam(
         .max()
         .unwrap_or(0);
     work.into_par_iter().for_each(|(k, b, mut blk)| {
-        BAND_SCRATCH.with_borrow_mut(|(g, hit, g32)| {
+        BAND_SCRATCH.with_borrow_mut(|(g, hit, g32, hits)| {
             // Kept all zero / false between tasks: each task clears what it set.
             if hit.len() < max_band || g32.len() != c {
                 *g = vec![0.0f64; max_band * c];
@@ -258,11 +258,11 @@ pub fn sample_backward_adam(
                 // requirement of `run_avx2`.
                 #[allow(unsafe_code)]
                 unsafe {
-                    task.run_avx2(&mut blk, g, hit, g32)
+                    task.run_avx2(&mut blk, g, hit, g32, hits)
                 };
                 return;
             }
-            task.run(&mut blk, g, hit, g32);
+            task.run(&mut blk, g, hit, g32, hits);
         })
     });
     Ok(())
@@ -280,19 +280,40 @@ impl BandTask<'_, '_> {
     /// Scatters the band's taps into `g` (its texels, `[texel][C]` in f64, all zero on entry)
     /// marking `hit`, then updates every hit row and clears what it set.
     #[inline(always)]
-    fn run(&self, blk: &mut SparseAdamRows<'_>, g: &mut [f64], hit: &mut [bool], g32: &mut [f32]) {
+    fn run(
+        &self,
+        blk: &mut SparseAdamRows<'_>,
+        g: &mut [f64],
+        hit: &mut [bool],
+        g32: &mut [f32],
+        hits: &mut Vec<u32>,
+    ) {
         let c = g32.len();
         self.gather.band(self.k, self.b, g, hit);
-        for (i, h) in hit.iter_mut().enumerate() {
-            if *h {
-                let gi = &mut g[i * c..(i + 1) * c];
-                for (o, a) in g32.iter_mut().zip(gi.iter()) {
-                    *o = *a as f32;
-                }
-                blk.update(i, g32, self.decay);
-                gi.fill(0.0);
-                *h = false;
+        // The hit rows' parameters and moments are scattered over arrays far larger than the
+        // caches: list the hits, then update each while prefetching the rows a few hits on.
+        let rows = hits;
+        rows.clear();
+        rows.extend(
+            hit.iter_mut()
+                .enumerate()
+                .filter(|(_, h)| **h)
+                .map(|(i, h)| {
+                    *h = false;
+                    i as u32
+                }),
+        );
+        for (j, &i) in rows.iter().enumerate() {
+            if let Some(&ahead) = rows.get(j + PREFETCH_ROWS_AHEAD) {
+                blk.prefetch(ahead as usize);
             }
+            let i = i as usize;
+            let gi = &mut g[i * c..(i + 1) * c];
+            for (o, a) in g32.iter_mut().zip(gi.iter()) {
+                *o = *a as f32;
+            }
+            blk.update(i, g32, self.decay);
+            gi.fill(0.0);
         }
     }
 
@@ -311,8 +332,9 @@ impl BandTask<'_, '_> {
         g: &mut [f64],
         hit: &mut [bool],
         g32: &mut [f32],
+        hits: &mut Vec<u32>,
     ) {
-        self.run(blk, g, hit, g32);
+        self.run(blk, g, hit, g32, hits);
     }
 }
 
@@ -320,9 +342,13 @@ thread_local! {
     /// Per-thread band accumulator, hit marks and f32 row of [`sample_backward_adam`], kept
     /// across calls (half a megabyte at 16 channels: allocating it per task meant fresh,
     /// page-faulting memory at every step until the allocator's thresholds settled).
-    static BAND_SCRATCH: std::cell::RefCell<(Vec<f64>, Vec<bool>, Vec<f32>)> =
-        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
+    static BAND_SCRATCH: std::cell::RefCell<(Vec<f64>, Vec<bool>, Vec<f32>, Vec<u32>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new(), Vec::new())) };
 }
+
+/// Hit texels ahead of the one being updated whose optimiser rows are prefetched (6 took 13%
+/// off the update at a 128 crop, where hits are sparse; no change at 256).
+const PREFETCH_ROWS_AHEAD: usize = 6;
 
 /// Covered pixels per task of the forward and of the bucketing (fixed, so the work split
 /// never depends on the thread count; at most 65536, pixels within a chunk are `u16`).
