@@ -67,11 +67,6 @@ pub fn conv_transpose_forward_act(
 /// Backward of [`conv_transpose_forward`].
 /// dy: `c_out x 2H x 2W`; w: `[c_in, c_out, 4, 4]`.
 /// Adds to dw and db; adds the input gradient (`c_in x H x W`) to `dx` when given.
-///
-/// A transposed conv is the adjoint of the 4x4 s2 p1 conv `C` from `c_out` channels on
-/// `2H x 2W` to `c_in` on `H x W` with the same weight tensor read as OIHW: its input gradient
-/// is `C(dy)`, and its weight gradient is `C`'s weight gradient on input `dy` with the
-/// (activated) tconv input `x` in the role of the output gradient. Both use one gather of dy.
 pub fn conv_transpose_backward(
     cache: &TconvCache,
     w: &[f32],
@@ -79,6 +74,27 @@ pub fn conv_transpose_backward(
     dw: &mut [f32],
     db: &mut [f32],
     dx: Option<&mut Tensor>,
+) {
+    let mut parts: Vec<&mut Tensor> = dx.into_iter().collect();
+    conv_transpose_backward_parts(cache, w, dy, dw, db, &mut parts);
+}
+
+/// [`conv_transpose_backward`] with the input gradient split over `dx_parts` as the forward's
+/// input was over its `parts` (channels in order; none: no input gradient), each added to.
+/// The U-Net hands its skip and decoder gradients here directly: no full-size gradient, no
+/// copy of the concatenation's backward.
+///
+/// A transposed conv is the adjoint of the 4x4 s2 p1 conv `C` from `c_out` channels on
+/// `2H x 2W` to `c_in` on `H x W` with the same weight tensor read as OIHW: its input gradient
+/// is `C(dy)`, and its weight gradient is `C`'s weight gradient on input `dy` with the
+/// (activated) tconv input `x` in the role of the output gradient. Both use one gather of dy.
+pub fn conv_transpose_backward_parts(
+    cache: &TconvCache,
+    w: &[f32],
+    dy: &Tensor,
+    dw: &mut [f32],
+    db: &mut [f32],
+    dx_parts: &mut [&mut Tensor],
 ) {
     let l = &cache.layout;
     assert!(
@@ -88,6 +104,12 @@ pub fn conv_transpose_backward(
     assert!(
         w.len() == l.weight_len() && dw.len() == w.len() && db.len() == l.c_out,
         "conv_transpose_backward: weights"
+    );
+    assert!(
+        dx_parts.is_empty()
+            || (dx_parts.iter().map(|p| p.c).sum::<usize>() == l.c_in
+                && dx_parts.iter().all(|p| p.h == l.h_in && p.w == l.w_in)),
+        "conv_transpose_backward: input gradient shapes"
     );
     bias_grad(dy, db);
     let g = ConvGeom {
@@ -104,12 +126,12 @@ pub fn conv_transpose_backward(
     };
     let adj = &adj_cache;
     let input_grad = move || {
-        let Some(dx) = dx else { return };
+        if dx_parts.is_empty() {
+            return;
+        }
         let raw = adj.layout.gemm(&pack_conv_weights(g, w), &adj.buf);
-        let d = adj.layout.finish(&raw, None);
+        add_unpitched(&adj.layout, &raw, dx_parts);
         pool::recycle(raw);
-        dx.data.iter_mut().zip(&d.data).for_each(|(a, b)| *a += b);
-        d.recycle();
     };
     let weight_grad = move || {
         let x = tconv_input(cache);
@@ -118,6 +140,32 @@ pub fn conv_transpose_backward(
     };
     rayon::join(input_grad, weight_grad);
     pool::recycle(adj_cache.buf);
+}
+
+/// Adds the GEMM output `raw` of `layout` (plane `o` at `o * n`, rows at the layout's pitch)
+/// to the planes of `parts`, which hold the output channels in order.
+fn add_unpitched(layout: &ConvLayout, raw: &[f32], parts: &mut [&mut Tensor]) {
+    let (ho, wo, n, pitch) = (layout.h_out, layout.w_out, layout.n, layout.pitch);
+    let plane = ho * wo;
+    if plane == 0 {
+        return;
+    }
+    let mut first = 0;
+    for part in parts.iter_mut() {
+        let src = &raw[first * n..(first + part.c) * n];
+        part.data
+            .par_chunks_mut(plane)
+            .zip(src.par_chunks(n))
+            .with_min_len(par_min_items(plane))
+            .for_each(|(dst, src)| {
+                for y in 0..ho {
+                    for (d, s) in dst[y * wo..(y + 1) * wo].iter_mut().zip(&src[y * pitch..]) {
+                        *d += s;
+                    }
+                }
+            });
+        first += part.c;
+    }
 }
 
 /// The activated input `c_in x H x W` of a transposed conv, from its zero-padded planes.

@@ -5,7 +5,9 @@
 use super::activation::{leaky_relu_backward, tanh_backward};
 use super::concat::concat_backward;
 use super::conv::{conv_backward, conv_forward, conv_forward_act, ConvCache};
-use super::conv_transpose::{conv_transpose_backward, conv_transpose_forward_act, TconvCache};
+use super::conv_transpose::{
+    conv_transpose_backward_parts, conv_transpose_forward_act, TconvCache,
+};
 use super::norm::lrelu_instance_norm_backward;
 use super::upsample::upsample_nearest2_backward;
 use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
@@ -278,20 +280,13 @@ impl UNetTrain {
             }
             let (ci, _) = p.decoder_channels(i);
             let in_hw = (g.h / 2, g.w / 2);
-            let mut dx = Tensor::zeros(ci, in_hw.0, in_hw.1);
-            self.up_backward(i, acts.dec[i].as_ref().expect("decoder cache"), &g, &mut dx);
+            let cache = acts.dec[i].as_ref().expect("decoder cache");
             if i == d - 1 {
-                de[d - 1]
-                    .data
-                    .iter_mut()
-                    .zip(&dx.data)
-                    .for_each(|(a, b)| *a += b);
-                dx.recycle();
+                self.up_backward(i, cache, &g, &mut [&mut de[d - 1]]);
             } else {
-                // dx = d concat(a_(i+1), e_i): decoder part first, then the skip.
+                // The input was concat(a_(i+1), e_i): decoder part first, then the skip.
                 let mut da = Tensor::zeros(ci - p.widths[i], in_hw.0, in_hw.1);
-                concat_backward(&dx, &mut da, &mut de[i]);
-                dx.recycle();
+                self.up_backward(i, cache, &g, &mut [&mut da, &mut de[i]]);
                 std::mem::replace(&mut g, da).recycle();
             }
         }
@@ -317,18 +312,28 @@ impl UNetTrain {
         out
     }
 
-    fn up_backward(&mut self, i: usize, cache: &UpCache, g: &Tensor, dx: &mut Tensor) {
+    /// Backward of up-sampling layer `i` from `g`, adding its input gradient to `dx_parts`
+    /// (the parts its input was concatenated from, in order).
+    fn up_backward(&mut self, i: usize, cache: &UpCache, g: &Tensor, dx_parts: &mut [&mut Tensor]) {
         let d = self.params.depth();
         let (wi, bi) = (2 * (d + i), 2 * (d + i) + 1);
         let w = &self.weights[wi];
         let (gw, gb) = two_mut(&mut self.grads, wi, bi);
         match cache {
-            UpCache::Tconv(c) => conv_transpose_backward(c, w, g, gw, gb, Some(dx)),
+            UpCache::Tconv(c) => conv_transpose_backward_parts(c, w, g, gw, gb, dx_parts),
             UpCache::UpConv { h, w: ww, conv } => {
-                let mut du = Tensor::zeros(dx.c, 2 * h, 2 * ww);
+                let ci: usize = dx_parts.iter().map(|p| p.c).sum();
+                let mut du = Tensor::zeros(ci, 2 * h, 2 * ww);
                 conv_backward(conv, w, g, gw, gb, Some(&mut du));
-                upsample_nearest2_backward(&du, dx);
+                let mut dx = Tensor::zeros(ci, *h, *ww);
+                upsample_nearest2_backward(&du, &mut dx);
                 du.recycle();
+                match dx_parts {
+                    [a] => a.data.iter_mut().zip(&dx.data).for_each(|(a, b)| *a += b),
+                    [a, b] => concat_backward(&dx, a, b),
+                    _ => unreachable!("a decoder input has one or two parts"),
+                }
+                dx.recycle();
             }
         }
     }
