@@ -236,7 +236,7 @@ pub fn sample_backward_adam(
         .max()
         .unwrap_or(0);
     work.into_par_iter().for_each(|(k, b, mut blk)| {
-        BAND_SCRATCH.with_borrow_mut(|(g, hit, g32, hits)| {
+        BAND_SCRATCH.with_borrow_mut(|BandScratch { g, hit, g32, hits }| {
             // Kept all zero / false between tasks: each task clears what it set.
             if hit.len() < max_band || g32.len() != c {
                 *g = vec![0.0f64; max_band * c];
@@ -338,12 +338,30 @@ impl BandTask<'_, '_> {
     }
 }
 
+/// A band task's working memory (see [`BAND_SCRATCH`]).
+struct BandScratch {
+    /// The band's gradient rows, `[texel][C]`.
+    g: Vec<f64>,
+    /// Which texels of the band were hit.
+    hit: Vec<bool>,
+    /// One gradient row in f32.
+    g32: Vec<f32>,
+    /// The hit texels, ascending.
+    hits: Vec<u32>,
+}
+
 thread_local! {
-    /// Per-thread band accumulator, hit marks and f32 row of [`sample_backward_adam`], kept
-    /// across calls (half a megabyte at 16 channels: allocating it per task meant fresh,
-    /// page-faulting memory at every step until the allocator's thresholds settled).
-    static BAND_SCRATCH: std::cell::RefCell<(Vec<f64>, Vec<bool>, Vec<f32>, Vec<u32>)> =
-        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new(), Vec::new())) };
+    /// Per-thread working memory of [`sample_backward_adam`], kept across calls (half a
+    /// megabyte at 16 channels: allocating it per task meant fresh, page-faulting memory at
+    /// every step until the allocator's thresholds settled).
+    static BAND_SCRATCH: std::cell::RefCell<BandScratch> = const {
+        std::cell::RefCell::new(BandScratch {
+            g: Vec::new(),
+            hit: Vec::new(),
+            g32: Vec::new(),
+            hits: Vec::new(),
+        })
+    };
 }
 
 /// Hit texels ahead of the one being updated whose optimiser rows are prefetched (6 took 13%
