@@ -236,15 +236,13 @@ pub fn sample_backward_adam(
         .max()
         .unwrap_or(0);
     work.into_par_iter().for_each(|(k, b, mut blk)| {
-        BAND_SCRATCH.with_borrow_mut(|BandScratch { g, hit, g32, hits }| {
+        BAND_SCRATCH.with_borrow_mut(|scratch| {
             // Kept all zero / false between tasks: each task clears what it set.
-            if hit.len() < max_band || g32.len() != c {
-                *g = vec![0.0f64; max_band * c];
-                *hit = vec![false; max_band];
-                *g32 = vec![0.0f32; c];
+            if scratch.hit.len() < max_band || scratch.g32.len() != c {
+                scratch.g = vec![0.0f64; max_band * c];
+                scratch.hit = vec![false; max_band];
+                scratch.g32 = vec![0.0f32; c];
             }
-            let rows = blk.len();
-            let (g, hit) = (&mut g[..rows * c], &mut hit[..rows]);
             let task = BandTask {
                 gather: &gather,
                 k,
@@ -258,11 +256,11 @@ pub fn sample_backward_adam(
                 // requirement of `run_avx2`.
                 #[allow(unsafe_code)]
                 unsafe {
-                    task.run_avx2(&mut blk, g, hit, g32, hits)
+                    task.run_avx2(&mut blk, scratch)
                 };
                 return;
             }
-            task.run(&mut blk, g, hit, g32, hits);
+            task.run(&mut blk, scratch);
         })
     });
     Ok(())
@@ -277,22 +275,21 @@ struct BandTask<'a, 'g> {
 }
 
 impl BandTask<'_, '_> {
-    /// Scatters the band's taps into `g` (its texels, `[texel][C]` in f64, all zero on entry)
-    /// marking `hit`, then updates every hit row and clears what it set.
+    /// Scatters the band's taps into `s.g` (its texels, `[texel][C]` in f64, all zero on
+    /// entry) marking `s.hit`, then updates every hit row and clears what it set.
     #[inline(always)]
-    fn run(
-        &self,
-        blk: &mut SparseAdamRows<'_>,
-        g: &mut [f64],
-        hit: &mut [bool],
-        g32: &mut [f32],
-        hits: &mut Vec<u32>,
-    ) {
-        let c = g32.len();
+    fn run(&self, blk: &mut SparseAdamRows<'_>, s: &mut BandScratch) {
+        let c = s.g32.len();
+        let band = blk.len();
+        let (g, hit, g32, rows) = (
+            &mut s.g[..band * c],
+            &mut s.hit[..band],
+            &mut s.g32,
+            &mut s.hits,
+        );
         self.gather.band(self.k, self.b, g, hit);
         // The hit rows' parameters and moments are scattered over arrays far larger than the
         // caches: list the hits, then update each while prefetching the rows a few hits on.
-        let rows = hits;
         rows.clear();
         rows.extend(
             hit.iter_mut()
@@ -326,15 +323,8 @@ impl BandTask<'_, '_> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     #[allow(unsafe_code)]
-    unsafe fn run_avx2(
-        &self,
-        blk: &mut SparseAdamRows<'_>,
-        g: &mut [f64],
-        hit: &mut [bool],
-        g32: &mut [f32],
-        hits: &mut Vec<u32>,
-    ) {
-        self.run(blk, g, hit, g32, hits);
+    unsafe fn run_avx2(&self, blk: &mut SparseAdamRows<'_>, s: &mut BandScratch) {
+        self.run(blk, s);
     }
 }
 
