@@ -43,6 +43,10 @@ const CT: usize = 3;
 const NT_TILE_VALUES: usize = 4096;
 /// Packed values per parallel task of [`PackedA::from_offsets`].
 const PAR_MIN_PACK: usize = 1 << 15;
+/// Blocks of at most this many rows skip packing B in [`gemm_nn`] (AVX-512). Measured on
+/// Zen 5 (48 KB L1): reading B in place wins up to M = 64 (4 x 128 x 16512: 65 -> 280
+/// GFLOP/s, 16 x 256 x 16512: 240 -> 410); for large M packing wins (1024^3: 400 vs 240).
+const DIRECT_MAX_ROWS: usize = MC;
 /// Below this many multiply-adds a product runs on the calling thread.
 const PARALLEL_MIN_MACS: usize = 1 << 19;
 
@@ -405,6 +409,11 @@ impl NnCtx<'_> {
         }
         let nrows = blk.rows.len();
         debug_assert_eq!(blk.i0 % MR, 0);
+        #[cfg(target_arch = "x86_64")]
+        if self.level == SimdLevel::Avx512 && nrows <= DIRECT_MAX_ROWS {
+            self.block_direct(blk);
+            return;
+        }
         // pack_b writes every value the kernels read (zeros past the block's last column).
         let mut pack_store =
             pool::scratch(KC.min(k) * NC.min(width.div_ceil(NR) * NR) + ALIGN_SLACK);
@@ -451,6 +460,62 @@ impl NnCtx<'_> {
             }
         }
         pool::recycle(pack_store);
+    }
+
+    /// [`Self::block`] for few rows (AVX-512): the kernel reads B straight from its rows
+    /// instead of a packed copy. Each B value then meets at most `DIRECT_MAX_ROWS` rows of A,
+    /// so packing it (a load and a store per value) would cost about as much as the product.
+    /// Same K blocks and summation order as the packed path: the same bits.
+    #[cfg(target_arch = "x86_64")]
+    fn block_direct(&self, mut blk: Block<'_>) {
+        let k = self.a.k;
+        let width = blk.rows.first().map_or(0, |r| r.len());
+        let nrows = blk.rows.len();
+        // Column group per kernel call as in `block` (12 accumulators either way).
+        let group = if nrows <= 3 { 4 } else { 2 };
+        let mut tiles = [[0.0f32; MR * NR]; 4];
+        assert!(blk.j0 + width <= self.b.len() - self.max_row);
+        for k0 in (0..k).step_by(KC) {
+            let kc = KC.min(k - k0);
+            let rows = &self.b_rows[k0..k0 + kc];
+            let first = k0 == 0 && !self.accumulate;
+            for jc in (0..width).step_by(group * NR) {
+                // Valid columns of each strip of the group (0..=NR).
+                let cols: [usize; 4] =
+                    std::array::from_fn(|q| width.saturating_sub(jc + q * NR).min(NR));
+                let masks = cols.map(|c| ((1u32 << c) - 1) as u16);
+                for r0 in (0..nrows).step_by(MR) {
+                    let mv = MR.min(nrows - r0);
+                    let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
+                    assert!(ap.len() >= kc * MR);
+                    // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; A holds
+                    // `kc * MR` values (asserted); lane `l < cols[q]` of strip q reads
+                    // `rows[kk] + j0 + jc + q * NR + l < max_row + j0 + width <= b.len()`
+                    // (asserted above), and masked-off lanes are not read.
+                    unsafe {
+                        let j = blk.j0 + jc;
+                        let (b, o) = (self.b, &mut tiles);
+                        match (mv, group) {
+                            (1, 4) => avx512::kernel_nn_direct::<1, 4>(ap, b, rows, j, masks, o),
+                            (2, 4) => avx512::kernel_nn_direct::<2, 4>(ap, b, rows, j, masks, o),
+                            (3, 4) => avx512::kernel_nn_direct::<3, 4>(ap, b, rows, j, masks, o),
+                            (1, _) => avx512::kernel_nn_direct::<1, 2>(ap, b, rows, j, masks, o),
+                            (2, _) => avx512::kernel_nn_direct::<2, 2>(ap, b, rows, j, masks, o),
+                            (3, _) => avx512::kernel_nn_direct::<3, 2>(ap, b, rows, j, masks, o),
+                            (4, _) => avx512::kernel_nn_direct::<4, 2>(ap, b, rows, j, masks, o),
+                            (5, _) => avx512::kernel_nn_direct::<5, 2>(ap, b, rows, j, masks, o),
+                            _ => avx512::kernel_nn_direct::<6, 2>(ap, b, rows, j, masks, o),
+                        }
+                    }
+                    for (q, tile) in tiles.iter().enumerate().take(group) {
+                        if cols[q] > 0 {
+                            let js = jc + q * NR;
+                            store_tile(&mut blk.rows, r0, js, mv, cols[q], tile, first);
+                        }
+                    }
+                }
+            }
+        }
     }
 
     /// Copies B rows `k0..k0 + kc`, columns `j..j + ncw` into NR-wide strips
@@ -972,6 +1037,50 @@ mod avx512 {
             for q in 0..G {
                 v[q] = _mm512_loadu_ps(bp[q]);
                 bp[q] = bp[q].add(NR);
+            }
+            for (r, acc) in acc.iter_mut().enumerate() {
+                let av = _mm512_set1_ps(*ap.add(r));
+                for q in 0..G {
+                    acc[q] = _mm512_fmadd_ps(av, v[q], acc[q]);
+                }
+            }
+            ap = ap.add(MR);
+        }
+        for (r, acc) in acc.iter().enumerate() {
+            for q in 0..G {
+                // SAFETY: `r < R <= MR` and `q < G <= 4`: row r of tile q.
+                _mm512_storeu_ps(out[q].as_mut_ptr().add(r * NR), acc[q]);
+            }
+        }
+    }
+
+    /// [`kernel_nn_group`] on unpacked B: strip q is lanes `..` of `mask[q]` (low bits) of
+    /// `b[rows[kk] + j + q * NR..]`, zero elsewhere, for `kk < rows.len()`. Prefetches the
+    /// same rows' next group of columns: the rows are far apart, too many streams for the
+    /// hardware prefetcher.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F; `a.len() >= rows.len() * MR`, `G <= 4`, and every
+    /// unmasked lane is inside `b`.
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn kernel_nn_direct<const R: usize, const G: usize>(
+        a: &[f32],
+        b: &[f32],
+        rows: &[usize],
+        j: usize,
+        mask: [u16; 4],
+        out: &mut [[f32; MR * NR]; 4],
+    ) {
+        let mut acc = [[_mm512_setzero_ps(); G]; R];
+        let mut ap = a.as_ptr();
+        let base = b.as_ptr().wrapping_add(j);
+        for &row in rows {
+            let p = base.wrapping_add(row);
+            let mut v = [_mm512_setzero_ps(); G];
+            for q in 0..G {
+                // SAFETY: unmasked lanes are in bounds by the contract.
+                v[q] = _mm512_maskz_loadu_ps(mask[q], p.wrapping_add(q * NR));
+                _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add((G + q) * NR) as *const i8);
             }
             for (r, acc) in acc.iter_mut().enumerate() {
                 let av = _mm512_set1_ps(*ap.add(r));
