@@ -473,44 +473,62 @@ impl NnCtx<'_> {
         let nrows = blk.rows.len();
         // Column group per kernel call as in `block` (12 accumulators either way).
         let group = if nrows <= 3 { 4 } else { 2 };
-        let mut tiles = [[0.0f32; MR * NR]; 4];
         assert!(blk.j0 + width <= self.b.len() - self.max_row);
         for k0 in (0..k).step_by(KC) {
             let kc = KC.min(k - k0);
             let rows = &self.b_rows[k0..k0 + kc];
             let first = k0 == 0 && !self.accumulate;
             for jc in (0..width).step_by(group * NR) {
-                // Valid columns of each strip of the group (0..=NR).
-                let cols: [usize; 4] =
-                    std::array::from_fn(|q| width.saturating_sub(jc + q * NR).min(NR));
-                let masks = cols.map(|c| ((1u32 << c) - 1) as u16);
+                // Valid columns of each strip of the group (0..=NR) as lane masks.
+                let masks: [u16; 4] = std::array::from_fn(|q| {
+                    let cols = width.saturating_sub(jc + q * NR).min(NR);
+                    ((1u32 << cols) - 1) as u16
+                });
                 for r0 in (0..nrows).step_by(MR) {
                     let mv = MR.min(nrows - r0);
                     let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
                     assert!(ap.len() >= kc * MR);
+                    let out: [*mut f32; MR] = std::array::from_fn(|r| {
+                        blk.rows
+                            .get_mut(r0 + r)
+                            .map_or(std::ptr::null_mut(), |row| row[jc..].as_mut_ptr())
+                    });
                     // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; A holds
-                    // `kc * MR` values (asserted); lane `l < cols[q]` of strip q reads
+                    // `kc * MR` values (asserted); lane `l` of strip q is unmasked only when
+                    // `jc + q * NR + l < width`, so it reads
                     // `rows[kk] + j0 + jc + q * NR + l < max_row + j0 + width <= b.len()`
-                    // (asserted above), and masked-off lanes are not read.
+                    // (asserted above) and writes inside C row `r0 + r < nrows` (`width`
+                    // long), which the kernel touches only for `r < mv`.
                     unsafe {
-                        let j = blk.j0 + jc;
-                        let (b, o) = (self.b, &mut tiles);
+                        let (j, b) = (blk.j0 + jc, self.b);
                         match (mv, group) {
-                            (1, 4) => avx512::kernel_nn_direct::<1, 4>(ap, b, rows, j, masks, o),
-                            (2, 4) => avx512::kernel_nn_direct::<2, 4>(ap, b, rows, j, masks, o),
-                            (3, 4) => avx512::kernel_nn_direct::<3, 4>(ap, b, rows, j, masks, o),
-                            (1, _) => avx512::kernel_nn_direct::<1, 2>(ap, b, rows, j, masks, o),
-                            (2, _) => avx512::kernel_nn_direct::<2, 2>(ap, b, rows, j, masks, o),
-                            (3, _) => avx512::kernel_nn_direct::<3, 2>(ap, b, rows, j, masks, o),
-                            (4, _) => avx512::kernel_nn_direct::<4, 2>(ap, b, rows, j, masks, o),
-                            (5, _) => avx512::kernel_nn_direct::<5, 2>(ap, b, rows, j, masks, o),
-                            _ => avx512::kernel_nn_direct::<6, 2>(ap, b, rows, j, masks, o),
-                        }
-                    }
-                    for (q, tile) in tiles.iter().enumerate().take(group) {
-                        if cols[q] > 0 {
-                            let js = jc + q * NR;
-                            store_tile(&mut blk.rows, r0, js, mv, cols[q], tile, first);
+                            (1, 4) => {
+                                avx512::kernel_nn_direct::<1, 4>(ap, b, rows, j, masks, out, first)
+                            }
+                            (2, 4) => {
+                                avx512::kernel_nn_direct::<2, 4>(ap, b, rows, j, masks, out, first)
+                            }
+                            (3, 4) => {
+                                avx512::kernel_nn_direct::<3, 4>(ap, b, rows, j, masks, out, first)
+                            }
+                            (1, _) => {
+                                avx512::kernel_nn_direct::<1, 2>(ap, b, rows, j, masks, out, first)
+                            }
+                            (2, _) => {
+                                avx512::kernel_nn_direct::<2, 2>(ap, b, rows, j, masks, out, first)
+                            }
+                            (3, _) => {
+                                avx512::kernel_nn_direct::<3, 2>(ap, b, rows, j, masks, out, first)
+                            }
+                            (4, _) => {
+                                avx512::kernel_nn_direct::<4, 2>(ap, b, rows, j, masks, out, first)
+                            }
+                            (5, _) => {
+                                avx512::kernel_nn_direct::<5, 2>(ap, b, rows, j, masks, out, first)
+                            }
+                            _ => {
+                                avx512::kernel_nn_direct::<6, 2>(ap, b, rows, j, masks, out, first)
+                            }
                         }
                     }
                 }
@@ -1054,14 +1072,17 @@ mod avx512 {
         }
     }
 
-    /// [`kernel_nn_group`] on unpacked B: strip q is lanes `..` of `mask[q]` (low bits) of
-    /// `b[rows[kk] + j + q * NR..]`, zero elsewhere, for `kk < rows.len()`. Prefetches the
-    /// same rows' next group of columns: the rows are far apart, too many streams for the
-    /// hardware prefetcher.
+    /// [`kernel_nn_group`] on unpacked B, into C: strip q is the lanes of `mask[q]` (low bits)
+    /// of `b[rows[kk] + j + q * NR..]`, zero elsewhere, for `kk < rows.len()`; the tile's row
+    /// r, strip q is stored to (`first`) or added to `c[r] + q * NR`, unmasked lanes only.
+    /// Prefetches the same rows' next group of columns: the rows are far apart, too many
+    /// streams for the hardware prefetcher.
     ///
     /// # Safety
-    /// The CPU must support AVX-512F; `a.len() >= rows.len() * MR`, `G <= 4`, and every
-    /// unmasked lane is inside `b`.
+    /// The CPU must support AVX-512F; `a.len() >= rows.len() * MR`, `G <= 4`, every unmasked
+    /// lane is inside `b`, and for `r < R` every unmasked lane of `c[r]` is writable and
+    /// aliases nothing else in use.
+    #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx512f")]
     pub unsafe fn kernel_nn_direct<const R: usize, const G: usize>(
         a: &[f32],
@@ -1069,7 +1090,8 @@ mod avx512 {
         rows: &[usize],
         j: usize,
         mask: [u16; 4],
-        out: &mut [[f32; MR * NR]; 4],
+        c: [*mut f32; MR],
+        first: bool,
     ) {
         let mut acc = [[_mm512_setzero_ps(); G]; R];
         let mut ap = a.as_ptr();
@@ -1092,8 +1114,14 @@ mod avx512 {
         }
         for (r, acc) in acc.iter().enumerate() {
             for q in 0..G {
-                // SAFETY: `r < R <= MR` and `q < G <= 4`: row r of tile q.
-                _mm512_storeu_ps(out[q].as_mut_ptr().add(r * NR), acc[q]);
+                // SAFETY: unmasked lanes of row r are writable by the contract.
+                let p = c[r].wrapping_add(q * NR);
+                let v = if first {
+                    acc[q]
+                } else {
+                    _mm512_add_ps(_mm512_maskz_loadu_ps(mask[q], p), acc[q])
+                };
+                _mm512_mask_storeu_ps(p, mask[q], v);
             }
         }
     }
