@@ -155,11 +155,14 @@ pub fn sample_forward_taps(
         .map(|y| active.partition_point(|&p| (p as usize) < y * w))
         .collect();
     for_rows_of_planes(out, c, w, h, |y, planes| {
-        planes.iter_mut().for_each(|p| p.fill(0.0));
-        for a in row_start[y]..row_start[y + 1] {
-            let x = active[a] as usize - y * w;
-            for (plane, &f) in planes.iter_mut().zip(&f_act[a * c..(a + 1) * c]) {
-                plane[x] = f;
+        let (a0, a1) = (row_start[y], row_start[y + 1]);
+        let xs = &active[a0..a1];
+        let rows = &f_act[a0 * c..a1 * c];
+        // Plane by plane: one output stream at a time, the row's features stay in L1.
+        for (ch, plane) in planes.iter_mut().enumerate() {
+            plane.fill(0.0);
+            for (&p, f) in xs.iter().zip(rows.chunks_exact(c)) {
+                plane[p as usize - y * w] = f[ch];
             }
         }
     });
