@@ -434,23 +434,28 @@ impl ConvLayout {
                 .with_min_len(par_min_items(n))
                 .enumerate()
                 .for_each(|(c, dplane)| {
-                    // Each input pixel appears in exactly one phase plane.
+                    // Each input pixel appears in exactly one phase plane: even columns come
+                    // from phase b = 1 (column i), odd ones from b = 0 (column i + 1). Both in
+                    // one pass, so the row is written contiguously.
+                    let w = self.w_in;
                     for a in 0..2 {
-                        for b in 0..2 {
-                            let plane = &dbuf[(c * 4 + a * 2 + b) * ps..];
-                            let (x0, col0) = if b == 0 { (1, 1) } else { (0, 0) };
-                            for row in 0..ph {
-                                let Some(y) =
-                                    (2 * row + a).checked_sub(1).filter(|&y| y < self.h_in)
-                                else {
-                                    continue;
-                                };
-                                let src = &plane[row * pw + col0..(row + 1) * pw];
-                                let dst = &mut dplane[y * self.w_in..(y + 1) * self.w_in];
-                                dst[x0.min(self.w_in)..]
-                                    .chunks_mut(2)
-                                    .zip(src)
-                                    .for_each(|(d, s)| d[0] += *s);
+                        let p0 = &dbuf[(c * 4 + a * 2) * ps..];
+                        let p1 = &dbuf[(c * 4 + a * 2 + 1) * ps..];
+                        for row in 0..ph {
+                            let Some(y) = (2 * row + a).checked_sub(1).filter(|&y| y < self.h_in)
+                            else {
+                                continue;
+                            };
+                            let odd = &p0[row * pw + 1..(row + 1) * pw];
+                            let even = &p1[row * pw..(row + 1) * pw];
+                            let dst = &mut dplane[y * w..(y + 1) * w];
+                            let mut pairs = dst.chunks_exact_mut(2);
+                            for ((d, &e), &o) in pairs.by_ref().zip(even).zip(odd) {
+                                d[0] += e;
+                                d[1] += o;
+                            }
+                            if let [last] = pairs.into_remainder() {
+                                *last += even[w / 2];
                             }
                         }
                     }
