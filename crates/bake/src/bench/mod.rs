@@ -16,6 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use std::fmt;
 use std::time::Instant;
 
+pub mod conv;
 pub mod step;
 
 /// The CPU-sized U-Net widths.
@@ -96,7 +97,7 @@ pub fn bench_params(widths: &[usize]) -> UNetParams {
     }
 }
 
-fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
+pub(crate) fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
     Tensor::from_vec(
         c,
         h,
@@ -111,8 +112,9 @@ fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) -> Tensor {
 /// One measured configuration.
 #[derive(Clone, Debug)]
 pub struct BenchRow {
-    /// "train" (U-Net forward, backward, Adam), "step" (the baker's whole step, texture
-    /// included), "infer", or "encoder GEMMs" (see [`bench_encoder_gemm`]).
+    /// "train" (U-Net forward, backward, Adam), "conv fwd+bwd" (its convolutions alone, see
+    /// [`conv::bench_conv_layers`]), "step" (the baker's whole step, texture included),
+    /// "infer", or "encoder GEMMs" (see [`bench_encoder_gemm`]).
     pub kind: &'static str,
     /// U-Net widths.
     pub widths: Vec<usize>,
@@ -254,6 +256,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
     for widths in [&CPU_WIDTHS[..], &PAPER_WIDTHS[..]] {
         for size in [128, 256] {
             rows.push(bench_train(widths, size, reps));
+            rows.push(conv::bench_conv_layers(widths, size, reps));
             // The baker's whole step: texture sampling, SH, U-Net, losses, texture update.
             let w32: Vec<u32> = widths.iter().map(|&w| w as u32).collect();
             let (ms_min, ms_median, phases) = step::bench_trainer_step(&w32, size, reps);
