@@ -1,27 +1,38 @@
-//! The AVX-512 `gemm_nn` path that reads B in place (blocks of few rows) against the AVX2 path,
-//! which always packs B: same K blocks, same summation order, so the same bits. One test in
-//! this binary, so switching the instruction-set cap races nothing.
+//! `gemm_nn`'s two paths for blocks of few rows, B read in place or packed, against each other
+//! at every instruction set the CPU has (AVX2 always packs, so there the runs must merely
+//! agree), and AVX-512 in place against AVX2 packed: same K blocks, same summation order, so
+//! the same bits. One test in this binary, so switching the
+//! global path switches races nothing.
 
 mod nn_common;
 use nn_common::*;
 
-use dnr_runtime::nn::gemm::{gemm_nn, set_simd_cap, simd_level, PackedA, SimdLevel};
+use dnr_runtime::nn::gemm::{
+    gemm_nn, set_in_place_b, set_simd_cap, simd_level, PackedA, SimdLevel,
+};
 
 #[test]
 fn unpacked_b_gives_the_packed_bits() {
-    set_simd_cap(SimdLevel::Avx512);
-    if simd_level() < SimdLevel::Avx512 {
-        eprintln!("no AVX-512 on this CPU: the in-place path never runs here");
-        return;
+    let mut levels = Vec::new();
+    for level in [SimdLevel::Avx2, SimdLevel::Avx512] {
+        set_simd_cap(level);
+        if simd_level() == level {
+            levels.push(level);
+        }
+    }
+    if levels.is_empty() {
+        eprintln!("no AVX2 on this CPU: the in-place paths never run here");
     }
     let mut r = rng(41);
-    // Row counts on both sides of the in-place limit, partial column strips, several K blocks.
+    // Row counts on both sides of the in-place limit, partial column strips (widths 1..15
+    // past the last full strip), several K blocks.
     for &(m, n, k) in &[
         (1, 5, 3),
         (4, 300, 129),
         (16, 1000, 257),
         (40, 77, 600),
         (72, 33, 64),
+        (7, 9, 20),
         (80, 130, 300),
     ] {
         let pitch = n + 3;
@@ -30,19 +41,31 @@ fn unpacked_b_gives_the_packed_bits() {
         let a = PackedA::new(m, k, &randv(&mut r, m * k), k, 1);
         for accumulate in [false, true] {
             let c0 = randv(&mut r, m * n);
-            let run = |level| {
+            let run = |level, in_place| {
                 set_simd_cap(level);
+                set_in_place_b(in_place);
                 let mut c = c0.clone();
                 gemm_nn(&a, &b, &rows, n, &mut c, n, accumulate);
                 c
             };
-            let (fast, packed) = (run(SimdLevel::Avx512), run(SimdLevel::Avx2));
-            let same = fast
-                .iter()
-                .zip(&packed)
-                .all(|(x, y)| x.to_bits() == y.to_bits());
-            assert!(same, "{m}x{n}x{k} accumulate={accumulate}: paths differ");
+            let same =
+                |x: &[f32], y: &[f32]| x.iter().zip(y).all(|(x, y)| x.to_bits() == y.to_bits());
+            for &level in &levels {
+                let (fast, packed) = (run(level, true), run(level, false));
+                assert!(
+                    same(&fast, &packed),
+                    "{level:?} {m}x{n}x{k} accumulate={accumulate}: in place and packed differ"
+                );
+                if level == SimdLevel::Avx512 {
+                    let avx2 = run(SimdLevel::Avx2, false);
+                    assert!(
+                        same(&fast, &avx2),
+                        "{m}x{n}x{k} accumulate={accumulate}: AVX-512 and AVX2 differ"
+                    );
+                }
+            }
         }
     }
+    set_in_place_b(true);
     set_simd_cap(SimdLevel::Avx512);
 }

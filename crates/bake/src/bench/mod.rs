@@ -17,6 +17,7 @@ use std::fmt;
 use std::time::Instant;
 
 pub mod conv;
+pub mod peak;
 pub mod step;
 
 /// The CPU-sized U-Net widths.
@@ -239,6 +240,8 @@ pub fn bench_encoder_gemm(widths: &[usize], size: usize, reps: usize) -> BenchRo
 pub struct BenchReport {
     /// sgemm 1024 GFLOP/s measured in this run.
     pub peak_gflops: f64,
+    /// The FMA units' GFLOP/s measured in this run ([`peak::fma_peak_gflops`]).
+    pub fma_peak_gflops: f64,
     /// Kernel instruction set used (see `dnr_runtime::nn::gemm::set_simd_cap` to emulate an
     /// AVX2-only CPU).
     pub simd: SimdLevel,
@@ -252,6 +255,7 @@ pub struct BenchReport {
 /// CPU-sized and the paper U-Net. `reps` timed repetitions each (min reported).
 pub fn run_standard(reps: usize) -> BenchReport {
     let peak = sgemm_peak_gflops(reps.max(3));
+    let fma_peak = peak::fma_peak_gflops(reps.max(3));
     let mut rows = Vec::new();
     for widths in [&CPU_WIDTHS[..], &PAPER_WIDTHS[..]] {
         for size in [128, 256] {
@@ -277,6 +281,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
     }
     BenchReport {
         peak_gflops: peak,
+        fma_peak_gflops: fma_peak,
         simd: simd_level(),
         threads: rayon::current_num_threads(),
         rows,
@@ -287,18 +292,21 @@ impl fmt::Display for BenchReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; kernels {:?}; {} threads",
-            self.peak_gflops, self.simd, self.threads
+            "sgemm 1024 peak (same GEMM): {:.1} GFLOP/s; FMA peak {:.1} GFLOP/s; kernels {:?}; {} threads",
+            self.peak_gflops, self.fma_peak_gflops, self.simd, self.threads
         )?;
         writeln!(
             f,
-            "| kind | widths | size | ms (min) | ms (median) | conv GFLOP | GFLOP/s | of peak |"
+            "| kind | widths | size | ms (min) | ms (median) | conv GFLOP | GFLOP/s | of sgemm peak | of FMA peak |"
         )?;
-        writeln!(f, "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")?;
+        writeln!(
+            f,
+            "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
+        )?;
         for r in &self.rows {
             writeln!(
                 f,
-                "| {} | {:?} | {} | {:.1} | {:.1} | {:.3} | {:.1} | {:.0}% |",
+                "| {} | {:?} | {} | {:.1} | {:.1} | {:.3} | {:.1} | {:.0}% | {:.0}% |",
                 r.kind,
                 r.widths,
                 r.size,
@@ -306,7 +314,8 @@ impl fmt::Display for BenchReport {
                 r.ms_median,
                 r.gflop,
                 r.gflops(),
-                100.0 * r.gflops() / self.peak_gflops
+                100.0 * r.gflops() / self.peak_gflops,
+                100.0 * r.gflops() / self.fma_peak_gflops
             )?;
         }
         writeln!(

@@ -150,6 +150,7 @@ fn train(
     println!("{report}");
     let mut out = serde_json::json!({
         "sgemmPeakGflops": report.peak_gflops,
+        "fmaPeakGflops": report.fma_peak_gflops,
         "threads": report.threads,
         "simd": format!("{:?}", report.simd),
         "rows": report.rows.iter().map(|r| serde_json::json!({

@@ -22,7 +22,7 @@
 
 use super::tensor::pool;
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 
 /// Rows of A per micro-tile of [`gemm_nn`].
 pub const MR: usize = 6;
@@ -67,6 +67,14 @@ static SIMD_CAP: AtomicU8 = AtomicU8::new(SimdLevel::Avx512 as u8);
 /// can emulate an AVX2-only CPU). [`SimdLevel::Avx512`] restores full detection.
 pub fn set_simd_cap(cap: SimdLevel) {
     SIMD_CAP.store(cap as u8, Ordering::Relaxed);
+}
+
+static IN_PLACE_B: AtomicBool = AtomicBool::new(true);
+
+/// Lets [`gemm_nn`] read B in place for blocks of few rows (`true`, the default) or makes it
+/// always pack B (`false`). Both give the same bits; tests compare them, benchmarks time them.
+pub fn set_in_place_b(on: bool) {
+    IN_PLACE_B.store(on, Ordering::Relaxed);
 }
 
 /// Forces the portable scalar kernels (`true`) or restores detection (`false`).
@@ -410,7 +418,10 @@ impl NnCtx<'_> {
         let nrows = blk.rows.len();
         debug_assert_eq!(blk.i0 % MR, 0);
         #[cfg(target_arch = "x86_64")]
-        if self.level == SimdLevel::Avx512 && nrows <= DIRECT_MAX_ROWS {
+        if self.level == SimdLevel::Avx512
+            && nrows <= DIRECT_MAX_ROWS
+            && IN_PLACE_B.load(Ordering::Relaxed)
+        {
             self.block_direct(blk);
             return;
         }
@@ -465,7 +476,9 @@ impl NnCtx<'_> {
     /// [`Self::block`] for few rows (AVX-512): the kernel reads B straight from its rows
     /// instead of a packed copy. Each B value then meets at most `DIRECT_MAX_ROWS` rows of A,
     /// so packing it (a load and a store per value) would cost about as much as the product.
-    /// Same K blocks and summation order as the packed path: the same bits.
+    /// Same K blocks and summation order as the packed path: the same bits. Not for AVX2: on
+    /// Zen 3 an AVX2 twin lost to packing (16 x 256 x 16512: 20 against 42 GFLOP/s), the
+    /// 256 rows a strip reads at once outrunning its 32 KB L1 and its prefetchers.
     #[cfg(target_arch = "x86_64")]
     fn block_direct(&self, mut blk: Block<'_>) {
         let k = self.a.k;
