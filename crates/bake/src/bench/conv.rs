@@ -123,13 +123,11 @@ pub fn bench_conv_layers(widths: &[usize], size: usize, reps: usize) -> BenchRow
             }
         })
     });
-    BenchRow {
-        kind: "conv fwd+bwd",
-        widths: widths.to_vec(),
+    BenchRow::timed(
+        "conv fwd+bwd",
+        widths,
         size,
-        ms_min: t_min * 1e3,
-        ms_median: t_med * 1e3,
-        gflop: 3.0 * p.flops(size, size) as f64 * 1e-9,
-        phases: None,
-    }
+        (t_min, t_med),
+        3.0 * p.flops(size, size) as f64 * 1e-9,
+    )
 }

@@ -132,6 +132,25 @@ pub struct BenchRow {
 }
 
 impl BenchRow {
+    /// A row without phases from `(min, median)` seconds and the work's GFLOP.
+    pub(crate) fn timed(
+        kind: &'static str,
+        widths: &[usize],
+        size: usize,
+        (t_min, t_med): (f64, f64),
+        gflop: f64,
+    ) -> Self {
+        Self {
+            kind,
+            widths: widths.to_vec(),
+            size,
+            ms_min: t_min * 1e3,
+            ms_median: t_med * 1e3,
+            gflop,
+            phases: None,
+        }
+    }
+
     /// Achieved GFLOP/s at the best time.
     pub fn gflops(&self) -> f64 {
         self.gflop / (self.ms_min * 1e-3)
@@ -166,15 +185,13 @@ pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
             }
         })
     });
-    BenchRow {
-        kind: "train",
-        widths: widths.to_vec(),
+    BenchRow::timed(
+        "train",
+        widths,
         size,
-        ms_min: t_min * 1e3,
-        ms_median: t_med * 1e3,
-        gflop: 3.0 * p.flops(size, size) as f64 * 1e-9,
-        phases: None,
-    }
+        (t_min, t_med),
+        3.0 * p.flops(size, size) as f64 * 1e-9,
+    )
 }
 
 /// Inference (runtime `UNet::forward`) on a random `16 x size x size` feature image.
@@ -187,15 +204,13 @@ pub fn bench_infer(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let (t_min, t_med) = time_steady(reps, true, || {
         std::hint::black_box(unet.forward(&x).expect("shapes"));
     });
-    BenchRow {
-        kind: "infer",
-        widths: widths.to_vec(),
+    BenchRow::timed(
+        "infer",
+        widths,
         size,
-        ms_min: t_min * 1e3,
-        ms_median: t_med * 1e3,
-        gflop: p.flops(size, size) as f64 * 1e-9,
-        phases: None,
-    }
+        (t_min, t_med),
+        p.flops(size, size) as f64 * 1e-9,
+    )
 }
 
 /// The encoder convolutions alone, as GEMMs on their gathered inputs (gathers, bias, norms
@@ -224,15 +239,13 @@ pub fn bench_encoder_gemm(widths: &[usize], size: usize, reps: usize) -> BenchRo
             pool::recycle(std::hint::black_box(l.gemm(a, buf)));
         }
     });
-    BenchRow {
-        kind: "encoder GEMMs",
-        widths: widths.to_vec(),
+    BenchRow::timed(
+        "encoder GEMMs",
+        widths,
         size,
-        ms_min: t_min * 1e3,
-        ms_median: t_med * 1e3,
-        gflop: flops as f64 * 1e-9,
-        phases: None,
-    }
+        (t_min, t_med),
+        flops as f64 * 1e-9,
+    )
 }
 
 /// A full benchmark run.
