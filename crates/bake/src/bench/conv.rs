@@ -2,11 +2,12 @@
 //! them: what "convolution forward and backward as a fraction of the sgemm peak" measures,
 //! without the norms, activations, losses and optimiser that the "train" row also times.
 
-use super::{bench_params, random_tensor, time_steady, BenchRow};
+use super::{bench_params, random_tensor, time_min_median, time_steady, BenchRow};
 use crate::kernels::conv::{conv_backward, conv_forward_act};
 use crate::kernels::conv_transpose::{conv_transpose_backward_parts, conv_transpose_forward_act};
 use dnr_runtime::network::unet::UNetParams;
 use dnr_runtime::nn::activation::Act;
+use dnr_runtime::nn::awake::with_workers_awake;
 use dnr_runtime::nn::Tensor;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -75,51 +76,54 @@ fn layers(p: &UNetParams, size: usize, r: &mut ChaCha8Rng) -> Vec<Layer> {
     out
 }
 
-/// Every convolution of the U-Net of `widths` at a `size` crop: forward (layout gather, weight
-/// packing, GEMMs, bias), then backward (weight, bias and input gradients), layer by layer on
-/// random operands. FLOPs: 3x the forward's, as for the "train" row.
+/// Layer `i` of `p` once: forward (layout gather, weight packing, GEMMs, bias), then backward
+/// (weight, bias and input gradients).
+fn run_layer(p: &UNetParams, i: usize, l: &mut Layer) {
+    match l.tconv {
+        None => {
+            let x = &l.parts[0];
+            let g = p.encoder_geom(i);
+            let (y, _, cache) =
+                conv_forward_act(x, Act::Identity, (x.h, x.w), &l.w, &l.b, g, false)
+                    .expect("encoder shapes");
+            y.recycle();
+            conv_backward(
+                &cache,
+                &l.w,
+                &l.dy,
+                &mut l.dw,
+                &mut l.db,
+                Some(&mut l.dx[0]),
+            );
+        }
+        Some(co) => {
+            let parts: Vec<&Tensor> = l.parts.iter().collect();
+            let (y, cache) =
+                conv_transpose_forward_act(&parts, Act::Identity, &l.w, &l.b, co, Act::Identity)
+                    .expect("decoder shapes");
+            y.recycle();
+            let mut dx: Vec<&mut Tensor> = l.dx.iter_mut().collect();
+            conv_transpose_backward_parts(&cache, &l.w, &l.dy, &mut l.dw, &mut l.db, &mut dx);
+        }
+    }
+}
+
+/// Forward multiply-adds of layer `l`: output pixels x output channels x taps x input channels.
+fn layer_macs(l: &Layer) -> u64 {
+    let c_in: usize = l.parts.iter().map(|t| t.c).sum();
+    (l.dy.c * l.dy.h * l.dy.w * c_in * 16) as u64 / if l.tconv.is_some() { 4 } else { 1 }
+}
+
+/// Every convolution of the U-Net of `widths` at a `size` crop, layer by layer on random
+/// operands (see [`run_layer`]). FLOPs: 3x the forward's, as for the "train" row.
 pub fn bench_conv_layers(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let p = bench_params(widths);
     let mut r = ChaCha8Rng::seed_from_u64(5);
     let mut ls = layers(&p, size, &mut r);
     let (t_min, t_med) = time_steady(reps, true, || {
-        rayon::scope(|_| {
+        with_workers_awake(|| {
             for (i, l) in ls.iter_mut().enumerate() {
-                match l.tconv {
-                    None => {
-                        let x = &l.parts[0];
-                        let g = p.encoder_geom(i);
-                        let (y, _, cache) =
-                            conv_forward_act(x, Act::Identity, (x.h, x.w), &l.w, &l.b, g, false)
-                                .expect("encoder shapes");
-                        y.recycle();
-                        conv_backward(
-                            &cache,
-                            &l.w,
-                            &l.dy,
-                            &mut l.dw,
-                            &mut l.db,
-                            Some(&mut l.dx[0]),
-                        );
-                    }
-                    Some(co) => {
-                        let parts: Vec<&Tensor> = l.parts.iter().collect();
-                        let (y, cache) = conv_transpose_forward_act(
-                            &parts,
-                            Act::Identity,
-                            &l.w,
-                            &l.b,
-                            co,
-                            Act::Identity,
-                        )
-                        .expect("decoder shapes");
-                        y.recycle();
-                        let mut dx: Vec<&mut Tensor> = l.dx.iter_mut().collect();
-                        conv_transpose_backward_parts(
-                            &cache, &l.w, &l.dy, &mut l.dw, &mut l.db, &mut dx,
-                        );
-                    }
-                }
+                run_layer(&p, i, l);
             }
         })
     });
@@ -130,4 +134,51 @@ pub fn bench_conv_layers(widths: &[usize], size: usize, reps: usize) -> BenchRow
         (t_min, t_med),
         3.0 * p.flops(size, size) as f64 * 1e-9,
     )
+}
+
+/// One layer's row of [`bench_conv_breakdown`].
+#[derive(Debug, Clone, serde::Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct LayerRow {
+    /// `enc0`.. for the encoder's convs, `dec<i>` for the decoder's transposed convs.
+    pub layer: String,
+    /// GEMM shape of the forward: output channels x (input channels x 16 taps) x output pixels
+    /// (per phase for a transposed conv: its 4 phases each run a quarter of the taps).
+    pub shape: String,
+    /// Minimum seconds of forward + backward.
+    pub min_s: f64,
+    /// Forward + backward GFLOP (3x the forward's).
+    pub gflop: f64,
+}
+
+/// Each convolution of [`bench_conv_layers`] timed alone (min of `reps` after warm-up): where
+/// the "conv fwd+bwd" row's time goes, layer by layer.
+pub fn bench_conv_breakdown(widths: &[usize], size: usize, reps: usize) -> Vec<LayerRow> {
+    let p = bench_params(widths);
+    let d = p.depth();
+    let mut r = ChaCha8Rng::seed_from_u64(5);
+    let mut ls = layers(&p, size, &mut r);
+    ls.iter_mut()
+        .enumerate()
+        .map(|(i, l)| {
+            let (t_min, _) = time_min_median(reps, || with_workers_awake(|| run_layer(&p, i, l)));
+            let c_in: usize = l.parts.iter().map(|t| t.c).sum();
+            let (name, shape) = match l.tconv {
+                None => (
+                    format!("enc{i}"),
+                    format!("{}x{}x{}", l.dy.c, c_in * 16, l.dy.h * l.dy.w),
+                ),
+                Some(_) => (
+                    format!("dec{}", 2 * d - 1 - i),
+                    format!("{}x{}x{}", l.dy.c, c_in * 4, l.dy.h * l.dy.w / 4),
+                ),
+            };
+            LayerRow {
+                layer: name,
+                shape,
+                min_s: t_min,
+                gflop: 6.0 * layer_macs(l) as f64 * 1e-9,
+            }
+        })
+        .collect()
 }

@@ -7,6 +7,7 @@ use crate::kernels::loss::l1_loss;
 use crate::kernels::unet::UNetTrain;
 use crate::train::PhaseSeconds;
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
+use dnr_runtime::nn::awake::with_workers_awake;
 use dnr_runtime::nn::conv::ConvLayout;
 use dnr_runtime::nn::gemm::{gemm_nn, simd_level, PackedA, SimdLevel};
 use dnr_runtime::nn::tensor::pool;
@@ -173,7 +174,7 @@ pub fn bench_train(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let mut dy = Tensor::zeros(3, size, size);
     // On a pool worker, as `Trainer::step` runs.
     let (t_min, t_med) = time_steady(reps, true, || {
-        rayon::scope(|_| {
+        with_workers_awake(|| {
             // Gradients start at zero: step_zero_grad clears them after each update.
             let (y, acts) = net.forward(&x).expect("shapes");
             dy.data.fill(0.0);
@@ -262,6 +263,8 @@ pub struct BenchReport {
     pub threads: usize,
     /// Measurements.
     pub rows: Vec<BenchRow>,
+    /// The CPU-sized U-Net's convolutions layer by layer, at each training crop size.
+    pub conv_layers: Vec<(usize, Vec<conv::LayerRow>)>,
 }
 
 /// Runs the standard table: training at 128 and 256, inference at 256 and 512, for the
@@ -299,6 +302,10 @@ pub fn run_standard(reps: usize) -> BenchReport {
         }
         rows.push(bench_encoder_gemm(widths, 512, reps));
     }
+    let conv_layers = [128, 256]
+        .into_iter()
+        .map(|size| (size, conv::bench_conv_breakdown(&CPU_WIDTHS, size, reps)))
+        .collect();
     let after = peaks();
     BenchReport {
         peak_gflops: before.0.max(after.0),
@@ -306,6 +313,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
         simd: simd_level(),
         threads: rayon::current_num_threads(),
         rows,
+        conv_layers,
     }
 }
 
@@ -350,6 +358,26 @@ impl fmt::Display for BenchReport {
                     f,
                     "| {:?} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
                     r.widths, r.size, p.features, p.forward, p.backward, p.feature_grads, p.updates
+                )?;
+            }
+        }
+        for (size, layers) in &self.conv_layers {
+            writeln!(
+                f,
+                "\nConvolutions of {CPU_WIDTHS:?} at {size} by layer (forward + backward, min ms): | layer | GEMM M x K x N | ms | GFLOP | GFLOP/s | of sgemm peak |"
+            )?;
+            writeln!(f, "| --- | --- | ---: | ---: | ---: | ---: |")?;
+            for l in layers {
+                let gf = l.gflop / l.min_s;
+                writeln!(
+                    f,
+                    "| {} | {} | {:.3} | {:.3} | {:.1} | {:.0}% |",
+                    l.layer,
+                    l.shape,
+                    l.min_s * 1e3,
+                    l.gflop,
+                    gf,
+                    100.0 * gf / self.peak_gflops
                 )?;
             }
         }

@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use dnr_runtime::network::mlp::{Mlp, MlpParams};
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
+use dnr_runtime::nn::awake::with_workers_awake;
 use dnr_runtime::nn::Tensor;
 use dnr_runtime::texture::{sample_into, Pyramid, Wrap};
 use rand::{Rng, SeedableRng};
@@ -414,9 +415,10 @@ impl Trainer {
     /// and large buffers go back to the runtime's tensor pool, so a step allocates little.
     pub fn step(&mut self, views: &[View]) -> Result<f64, TrainError> {
         // On a worker of the pool: the step's many small parallel kernels are then forked
-        // from a worker (the other one steals) instead of injected from outside, where the
-        // caller sleeps and is woken at every one.
-        rayon::scope(|_| self.step_in_pool(views))
+        // from a worker (the others steal) instead of injected from outside, where the caller
+        // sleeps and is woken at every one; and the other workers poll between kernels
+        // instead of sleeping.
+        with_workers_awake(|| self.step_in_pool(views))
     }
 
     fn step_in_pool(&mut self, views: &[View]) -> Result<f64, TrainError> {

@@ -159,6 +159,9 @@ fn train(
             "gflops": r.gflops(), "fractionOfPeak": r.gflops() / report.peak_gflops,
             "phasesMs": r.phases,
         })).collect::<Vec<_>>(),
+        "convLayers": report.conv_layers.iter().map(|(size, layers)| serde_json::json!({
+            "widths": dnr_bake::bench::CPU_WIDTHS, "size": size, "layers": layers,
+        })).collect::<Vec<_>>(),
     });
     if let Some(py) = torch {
         let tmp = std::env::temp_dir().join(format!("dnr-torch-bench-{}.json", std::process::id()));

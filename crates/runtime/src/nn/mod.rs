@@ -7,6 +7,7 @@
 //! (`dnr-bake`) computes gradients with the same code.
 
 pub mod activation;
+pub mod awake;
 pub mod conv;
 pub mod conv_transpose;
 pub mod dense;
