@@ -380,6 +380,42 @@ fn fused_lrelu_norm_backward_matches_fd() {
     assert_grad(&g.data, &num, TOL, "lrelu(instance norm)");
 }
 
+/// `kernels::simd::widest` compiles the fused norm backward and dense Adam for AVX-512, AVX2
+/// or the baseline: every path must give the same bits (no reordering, no fused multiply-add),
+/// on planes with a partial last block and a partial last vector.
+#[test]
+fn simd_paths_give_the_same_bits() {
+    use dnr_runtime::nn::gemm::{set_simd_cap, SimdLevel};
+    let mut r = rng(27);
+    let (c, h, w) = (3, 23, 29);
+    let mut z = randt(&mut r, c, h, w);
+    let st = instance_norm(&mut z);
+    let up = randv(&mut r, z.data.len());
+    let (params0, grads) = (randv(&mut r, 1003), randv(&mut r, 1003));
+    let run = || {
+        let mut g = Tensor::from_vec(c, h, w, up.clone()).unwrap();
+        lrelu_instance_norm_backward(&z, &st, 0.2, &mut g);
+        let mut p = params0.clone();
+        let mut adam = Adam::new(p.len(), AdamConfig::default());
+        for _ in 0..3 {
+            adam.step(&mut p, &grads);
+        }
+        g.data
+            .iter()
+            .chain(&p)
+            .map(|v| v.to_bits())
+            .collect::<Vec<u32>>()
+    };
+    let widest = run();
+    set_simd_cap(SimdLevel::Avx2);
+    let avx2 = run();
+    set_simd_cap(SimdLevel::Scalar);
+    let scalar = run();
+    set_simd_cap(SimdLevel::Avx512);
+    assert_eq!(widest, scalar, "widest path against the baseline");
+    assert_eq!(avx2, scalar, "AVX2 path against the baseline");
+}
+
 #[test]
 fn activations_backward_match_fd() {
     let mut r = rng(22);

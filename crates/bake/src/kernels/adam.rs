@@ -2,6 +2,7 @@
 //! row-sparse variant for neural-texture texels.
 
 use super::prefetch::prefetch;
+use super::simd::widest;
 use rayon::prelude::*;
 
 /// Adam hyper-parameters.
@@ -141,48 +142,20 @@ impl Adam {
     }
 }
 
-/// [`StepConsts::update`] over a chunk, with the widest vectors the CPU has: the update is
-/// bound by its square root and two divisions, which the baseline build runs four lanes at a
-/// time. IEEE operations round the same at every width, so every path gives the same bits.
+/// [`StepConsts::update`] over a chunk, with the widest vectors the CPU has ([`widest`]): the
+/// update is bound by its square root and two divisions, which the baseline build runs four
+/// lanes at a time.
 fn dense_chunk(k: &StepConsts, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
-    #[inline(always)]
-    fn run(k: &StepConsts, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
-        let n = p.len().min(g.len()).min(m.len()).min(v.len());
-        let (p, g, m, v) = (&mut p[..n], &g[..n], &mut m[..n], &mut v[..n]);
-        for i in 0..n {
-            k.update(&mut p[i], g[i], &mut m[i], &mut v[i]);
-        }
-    }
-    #[cfg(target_arch = "x86_64")]
-    {
-        use dnr_runtime::nn::gemm::{simd_level, SimdLevel};
-        #[target_feature(enable = "avx512f")]
-        #[allow(unsafe_code)]
-        unsafe fn run_avx512(
-            k: &StepConsts,
-            p: &mut [f32],
-            g: &[f32],
-            m: &mut [f32],
-            v: &mut [f32],
-        ) {
-            run(k, p, g, m, v)
-        }
-        #[target_feature(enable = "avx2")]
-        #[allow(unsafe_code)]
-        unsafe fn run_avx2(k: &StepConsts, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
-            run(k, p, g, m, v)
-        }
-        match simd_level() {
-            // SAFETY: the level is AVX-512 (AVX2) only when the CPU reports AVX-512F (AVX2),
-            // the only requirement of these functions.
-            #[allow(unsafe_code)]
-            SimdLevel::Avx512 => return unsafe { run_avx512(k, p, g, m, v) },
-            #[allow(unsafe_code)]
-            SimdLevel::Avx2 => return unsafe { run_avx2(k, p, g, m, v) },
-            SimdLevel::Scalar => {}
-        }
-    }
-    run(k, p, g, m, v)
+    widest(
+        #[inline(always)]
+        || {
+            let n = p.len().min(g.len()).min(m.len()).min(v.len());
+            let (p, g, m, v) = (&mut p[..n], &g[..n], &mut m[..n], &mut v[..n]);
+            for i in 0..n {
+                k.update(&mut p[i], g[i], &mut m[i], &mut v[i]);
+            }
+        },
+    )
 }
 
 /// Rows per parallel block of [`SparseAdam::step`] (fixed, so results do not depend on the

@@ -30,8 +30,8 @@ use rayon::prelude::*;
 
 use super::adam::{SparseAdam, SparseAdamRows};
 use super::prefetch::prefetch;
-#[cfg(target_arch = "x86_64")]
-use dnr_runtime::nn::gemm::{simd_level, SimdLevel};
+use super::simd::widest_up_to;
+use dnr_runtime::nn::gemm::SimdLevel;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
 pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
@@ -252,18 +252,13 @@ pub fn sample_backward_adam(
                 b,
                 decay: decay[k],
             };
-            // The runtime's instruction-set switch: tests force the baseline path with it.
-            #[cfg(target_arch = "x86_64")]
-            if simd_level() >= SimdLevel::Avx2 {
-                // SAFETY: the level is AVX2 or above only when the CPU reports AVX2, the only
-                // requirement of `run_avx2`.
-                #[allow(unsafe_code)]
-                unsafe {
-                    task.run_avx2(&mut blk, scratch)
-                };
-                return;
-            }
-            task.run(&mut blk, scratch);
+            // Vectorised for the widest instruction set detected (the f64 sums and the Adam
+            // arithmetic: the same operations in the same order, so the same bits).
+            widest_up_to(
+                SimdLevel::Avx2,
+                #[inline(always)]
+                || task.run(&mut blk, scratch),
+            );
         })
     });
     Ok(())
@@ -315,19 +310,6 @@ impl BandTask<'_, '_> {
             blk.update(i, g32, self.decay);
             gi.fill(0.0);
         }
-    }
-
-    /// [`Self::run`] compiled for AVX2: the f64 sums and the Adam arithmetic in 4- and
-    /// 8-lane vectors instead of baseline x86-64's 2 and 4 (the same operations in the same
-    /// order, so the same bits).
-    ///
-    /// # Safety
-    /// The CPU must support AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    #[allow(unsafe_code)]
-    unsafe fn run_avx2(&self, blk: &mut SparseAdamRows<'_>, s: &mut BandScratch) {
-        self.run(blk, s);
     }
 }
 
