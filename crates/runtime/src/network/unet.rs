@@ -7,6 +7,7 @@
 
 use super::{check_no_extra, fetch_tensors, map_lookup, NetworkError, TensorRef};
 use crate::nn::activation::{Act, LEAKY_SLOPE};
+use crate::nn::awake::with_workers_awake;
 use crate::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
 use crate::nn::conv_transpose::TconvLayout;
 use crate::nn::gemm::PackedA;
@@ -448,8 +449,13 @@ impl UNet {
         Ok(SkipPlan { enc, dec, work })
     }
 
-    /// Whole-frame or planned evaluation.
+    /// Whole-frame or planned evaluation, with the pool's workers kept polling between the
+    /// layers' many short parallel kernels ([`with_workers_awake`]).
     fn run(&self, x: &Tensor, plan: Option<&SkipPlan>) -> Result<Tensor, NnError> {
+        with_workers_awake(|| self.run_layers(x, plan))
+    }
+
+    fn run_layers(&self, x: &Tensor, plan: Option<&SkipPlan>) -> Result<Tensor, NnError> {
         let p = &self.params;
         self.check_input(x)?;
         if x.h == 0 || x.w == 0 {

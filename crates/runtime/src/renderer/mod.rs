@@ -39,6 +39,7 @@ use dnr_format::{Asset, DecodedTexture, WrapMode};
 use crate::camera::Camera;
 use crate::gbuffer::GBuffer;
 use crate::network::NetworkError;
+use crate::nn::awake::with_workers_awake;
 use crate::nn::NnError;
 use crate::raster::{self, rasterize};
 use crate::scene::{from_gltf_slice, Primitive, Scene, SceneError};
@@ -313,8 +314,9 @@ impl Renderer {
     ) -> Result<RgbaImage, RendererError> {
         check_frame(u64::from(width), u64::from(height))?;
         let cam = resized_camera(camera, width, height);
-        let gbuf = rasterize(&self.scene, &cam);
-        self.shade(&gbuf)
+        // One burst of parallel kernels: the workers poll through it (see `shade`). The
+        // rasteriser's G-buffer is consistent and its size was checked above.
+        with_workers_awake(|| shade::shade(self, &rasterize(&self.scene, &cam)))
     }
 
     /// Shades a G-buffer: the neural layer of a frame whose visibility the caller computed.
@@ -381,7 +383,9 @@ impl Renderer {
             )));
         }
         check_frame(gbuf.width as u64, gbuf.height as u64)?;
-        shade::shade(self, gbuf)
+        // Sampling, SH and the network fork many short kernels: the pool's workers poll
+        // between them instead of sleeping.
+        with_workers_awake(|| shade::shade(self, gbuf))
     }
 }
 
