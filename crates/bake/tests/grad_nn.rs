@@ -18,7 +18,7 @@ use dnr_bake::kernels::norm::{instance_norm_backward, lrelu_instance_norm_backwa
 use dnr_bake::kernels::unet::UNetTrain;
 use dnr_bake::kernels::upsample::upsample_nearest2_backward;
 use dnr_runtime::network::unet::{Decoder, Norm, UNetParams};
-use dnr_runtime::nn::activation::{leaky_relu, tanh};
+use dnr_runtime::nn::activation::{leaky_relu, tanh, Act};
 use dnr_runtime::nn::conv::{ConvGeom, ConvLayout};
 use dnr_runtime::nn::norm::instance_norm;
 use dnr_runtime::nn::upsample::upsample_nearest2;
@@ -380,9 +380,9 @@ fn fused_lrelu_norm_backward_matches_fd() {
     assert_grad(&g.data, &num, TOL, "lrelu(instance norm)");
 }
 
-/// `kernels::simd::widest` compiles the fused norm backward and dense Adam for AVX-512, AVX2
-/// or the baseline: every path must give the same bits (no reordering, no fused multiply-add),
-/// on planes with a partial last block and a partial last vector.
+/// `dnr_runtime::nn::simd::widest` compiles the fused norm backward, dense Adam and the
+/// runtime's activations for AVX-512, AVX2 or the baseline: every path must give the same bits
+/// (no reordering, no fused multiply-add), on planes with a partial last block and vector.
 #[test]
 fn simd_paths_give_the_same_bits() {
     use dnr_runtime::nn::gemm::{set_simd_cap, SimdLevel};
@@ -400,9 +400,15 @@ fn simd_paths_give_the_same_bits() {
         for _ in 0..3 {
             adam.step(&mut p, &grads);
         }
+        let act_in: Vec<f32> = up.iter().map(|v| 12.0 * v).collect();
+        let (mut th, mut lr) = (vec![0.0; act_in.len()], vec![0.0; act_in.len()]);
+        Act::Tanh.map(&act_in, &mut th);
+        Act::LeakyRelu(0.2).map(&act_in, &mut lr);
         g.data
             .iter()
             .chain(&p)
+            .chain(&th)
+            .chain(&lr)
             .map(|v| v.to_bits())
             .collect::<Vec<u32>>()
     };

@@ -1,7 +1,8 @@
 //! `dnr-runtime`: decodes and renders `EXT_deferred_neural_rendering` assets on the CPU.
 //!
 //! What a third-party viewer links. Must not depend on training code or heavy dependencies.
-// `unsafe` is denied everywhere except the SIMD micro-kernels in `nn::gemm`.
+// `unsafe` is denied everywhere except the SIMD micro-kernels in `nn::gemm` and the
+// instruction-set switch in `nn::simd`.
 #![deny(unsafe_code)]
 
 pub mod camera;

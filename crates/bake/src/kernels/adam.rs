@@ -2,7 +2,7 @@
 //! row-sparse variant for neural-texture texels.
 
 use super::prefetch::prefetch;
-use super::simd::widest;
+use dnr_runtime::nn::simd::widest;
 use rayon::prelude::*;
 
 /// Adam hyper-parameters.

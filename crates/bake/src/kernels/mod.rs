@@ -14,6 +14,5 @@ pub mod norm;
 pub mod prefetch;
 pub mod sample;
 pub mod sh;
-pub mod simd;
 pub mod unet;
 pub mod upsample;

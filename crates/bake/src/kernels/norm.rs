@@ -6,7 +6,7 @@ use dnr_runtime::nn::tensor::par_min_items;
 use dnr_runtime::nn::Tensor;
 use rayon::prelude::*;
 
-use super::simd::widest;
+use dnr_runtime::nn::simd::widest;
 
 /// Values per f32 partial sum of [`lrelu_instance_norm_backward`] (then summed in f64).
 const SUM_BLOCK: usize = 256;

@@ -30,8 +30,8 @@ use rayon::prelude::*;
 
 use super::adam::{SparseAdam, SparseAdamRows};
 use super::prefetch::prefetch;
-use super::simd::widest_up_to;
 use dnr_runtime::nn::gemm::SimdLevel;
+use dnr_runtime::nn::simd::widest_up_to;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
 pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {

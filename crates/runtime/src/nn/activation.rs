@@ -1,6 +1,8 @@
 //! Point-wise activations: LeakyReLU and a vectorisable tanh, in place or applied while
 //! another layer reads its input ([`Act`]).
 
+use super::simd::widest;
+
 /// Negative slope of the renderer's LeakyReLU.
 pub const LEAKY_SLOPE: f32 = 0.2;
 
@@ -26,14 +28,18 @@ impl Act {
         }
     }
 
-    /// The activation of every value of `src` written to `dst` (equal lengths).
+    /// The activation of every value of `src` written to `dst` (equal lengths), vectorised for
+    /// the widest instruction set the CPU has ([`widest`]: the same bits on every path).
     #[inline]
     pub fn map(self, src: &[f32], dst: &mut [f32]) {
-        match self {
-            Act::Identity => dst.copy_from_slice(src),
-            Act::LeakyRelu(s) => dst.iter_mut().zip(src).for_each(|(d, &v)| *d = lrelu(v, s)),
-            Act::Tanh => dst.iter_mut().zip(src).for_each(|(d, &v)| *d = tanh_f32(v)),
-        }
+        widest(
+            #[inline(always)]
+            move || match self {
+                Act::Identity => dst.copy_from_slice(src),
+                Act::LeakyRelu(s) => dst.iter_mut().zip(src).for_each(|(d, &v)| *d = lrelu(v, s)),
+                Act::Tanh => dst.iter_mut().zip(src).for_each(|(d, &v)| *d = tanh_f32(v)),
+            },
+        )
     }
 }
 

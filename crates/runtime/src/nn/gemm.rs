@@ -15,8 +15,9 @@
 //! summed in the same order whatever the blocking or thread count, so results are bit-identical
 //! across runs and thread counts.
 //!
-//! This is the only module of the crate with `unsafe`: the AVX2+FMA and AVX-512 micro-kernels
-//! (selected at run time from what the CPU reports) use raw-pointer loads. Every kernel has a
+//! This module and [`super::simd`] are the only ones of the crate with `unsafe`: the AVX2+FMA
+//! and AVX-512 micro-kernels (selected at run time from what the CPU reports) use raw-pointer
+//! loads. Every kernel has a
 //! safe scalar twin that [`set_simd_cap`] can force, so tests run both paths.
 #![allow(unsafe_code)]
 

@@ -14,6 +14,7 @@ pub mod dense;
 pub mod gemm;
 pub mod norm;
 pub mod region;
+pub mod simd;
 pub mod tensor;
 pub mod upsample;
 

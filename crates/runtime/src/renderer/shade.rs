@@ -150,6 +150,9 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                             }
                         });
                 }
+                // Back to the tensor pool, where the next frame's layers find it (dropped, it
+                // left them fresh allocations to page-fault in, every frame).
+                t.recycle();
             }
         }
     }

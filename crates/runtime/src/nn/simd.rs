@@ -1,13 +1,14 @@
 //! Running an element-wise loop with the widest vectors the CPU has.
 //!
-//! The crate is built for baseline x86-64 (SSE2: 4 lanes, no blends), so loops that are bound
-//! by arithmetic (Adam's square root and divisions, the norms' select-multiply-sum passes)
-//! leave most of an AVX2 or AVX-512 core idle. [`widest`] runs a closure inside a function
-//! compiled for the best instruction set detected at run time; the closure, inlined there, is
-//! vectorised for it. IEEE operations round the same at every width and the compiler never
+//! The crates are built for baseline x86-64 (SSE2: 4 lanes, no blends), so loops that are
+//! bound by arithmetic (tanh's polynomial, Adam's square root and divisions, the norms'
+//! select-multiply-sum passes) leave most of an AVX2 or AVX-512 core idle. [`widest`] runs a
+//! closure inside a function compiled for the best instruction set detected at run time; the
+//! closure, inlined there, is vectorised for it. IEEE operations round the same at every width and the compiler never
 //! reorders or fuses float operations, so every path gives the same bits.
+#![allow(unsafe_code)]
 
-use dnr_runtime::nn::gemm::{simd_level, SimdLevel};
+use super::gemm::{simd_level, SimdLevel};
 
 /// Runs `f` compiled for AVX-512F, AVX2 + FMA or the baseline, whichever
 /// [`simd_level`] allows (tests force the baseline with `set_simd_cap`). Keep `f` a plain
@@ -24,21 +25,17 @@ pub fn widest_up_to<R>(cap: SimdLevel, f: impl FnOnce() -> R) -> R {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx512f")]
-        #[allow(unsafe_code)]
         unsafe fn avx512<R>(f: impl FnOnce() -> R) -> R {
             f()
         }
         #[target_feature(enable = "avx2")]
-        #[allow(unsafe_code)]
         unsafe fn avx2<R>(f: impl FnOnce() -> R) -> R {
             f()
         }
         match simd_level().min(cap) {
             // SAFETY: the level is AVX-512 (AVX2) only when the CPU reports AVX-512F (AVX2
             // and FMA), the only requirement of these functions.
-            #[allow(unsafe_code)]
             SimdLevel::Avx512 => return unsafe { avx512(f) },
-            #[allow(unsafe_code)]
             SimdLevel::Avx2 => return unsafe { avx2(f) },
             SimdLevel::Scalar => {}
         }
