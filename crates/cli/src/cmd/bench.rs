@@ -261,9 +261,16 @@ fn render(asset: &PathBuf, sizes: &[u32], reps: usize, against: &[PathBuf]) -> R
     println!("| ---: | ---: | ---: | ---: |");
     for &s in sizes {
         let cam = camera(s, 0);
+        // A frame that fails (a bad size, a network error) is reported here, before timing.
+        for rr in [&r, &full] {
+            rr.render(&cam, s, s)
+                .with_context(|| format!("{}: a {s}x{s} frame", asset.display()))?;
+        }
+        // ok: the same frames rendered above, so these cannot fail.
         let (min, med) = dnr_bake::bench::time_min_median(reps, || {
             std::hint::black_box(r.render(&cam, s, s).expect("render"));
         });
+        // ok: as above.
         let (full_min, _) = dnr_bake::bench::time_min_median(reps, || {
             std::hint::black_box(full.render(&cam, s, s).expect("render"));
         });
