@@ -187,3 +187,40 @@ fn dense_matches_naive() {
     }
     assert!(dense(&[0.0; 3], 1, &[0.0; 2], &[0.0], 3, 1).is_err());
 }
+
+/// The transposed conv's four phases packed, multiplied and interleaved together
+/// (`pack_weights_all`, `gemm_all` / `gemm_nn_batch`, `interleave_all_act`) give the bits of
+/// the phase-by-phase path, with every activation and a cropped (odd-sized) output.
+#[test]
+fn conv_transpose_batched_phases_give_the_phase_by_phase_bits() {
+    use dnr_runtime::nn::activation::{Act, LEAKY_SLOPE};
+    use dnr_runtime::nn::conv_transpose::TconvLayout;
+    let mut r = rng(17);
+    // Sizes from one pixel to several GEMM blocks; channel counts off the tile sizes.
+    for &(ci, co, h, w) in &[(1, 1, 1, 1), (5, 3, 3, 7), (24, 13, 9, 5), (48, 70, 16, 16)] {
+        let x = randt(&mut r, ci, h, w);
+        let wt = randv(&mut r, ci * co * 16);
+        let b = randv(&mut r, co);
+        let l = TconvLayout::new(ci, co, h, w);
+        let buf = l.gather(&x);
+        for act in [Act::Identity, Act::LeakyRelu(LEAKY_SLOPE), Act::Tanh] {
+            for (oh, ow) in [(2 * h, 2 * w), (2 * h - 1, 2 * w - 1)] {
+                let mut want = Tensor::zeros(co, oh, ow);
+                for ph in 0..4 {
+                    let raw = l.gemm(&l.pack_weights(&wt, ph), &buf, ph);
+                    l.interleave_act(&raw, ph, Some(&b), act, &mut want);
+                }
+                let mut got = Tensor::zeros(co, oh, ow);
+                let raws = l.gemm_all(&l.pack_weights_all(&wt), &buf);
+                l.interleave_all_act(&raws, Some(&b), act, &mut got);
+                assert!(
+                    got.data
+                        .iter()
+                        .zip(&want.data)
+                        .all(|(g, w)| g.to_bits() == w.to_bits()),
+                    "{ci}->{co} on {h}x{w}, {act:?}, out {oh}x{ow}: batched phases differ"
+                );
+            }
+        }
+    }
+}

@@ -136,6 +136,11 @@ pub fn bench_conv_layers(widths: &[usize], size: usize, reps: usize) -> BenchRow
     )
 }
 
+/// Timed batches per layer of [`bench_conv_breakdown`] (the minimum is kept).
+const BREAKDOWN_BATCHES: usize = 5;
+/// Fewest calls per batch of [`bench_conv_breakdown`].
+const BREAKDOWN_MIN_BATCH: usize = 20;
+
 /// One layer's row of [`bench_conv_breakdown`].
 #[derive(Debug, Clone, serde::Serialize)]
 #[serde(rename_all = "camelCase")]
@@ -151,8 +156,10 @@ pub struct LayerRow {
     pub gflop: f64,
 }
 
-/// Each convolution of [`bench_conv_layers`] timed alone (min of `reps` after warm-up): where
-/// the "conv fwd+bwd" row's time goes, layer by layer.
+/// Each convolution of [`bench_conv_layers`] timed alone: where the "conv fwd+bwd" row's time
+/// goes, layer by layer. Each timing is the mean of a batch of `reps` calls inside one
+/// [`with_workers_awake`] region, as the layer runs inside a step (waking the workers for
+/// every call would add their wake-up to each small layer); the minimum over batches.
 pub fn bench_conv_breakdown(widths: &[usize], size: usize, reps: usize) -> Vec<LayerRow> {
     let p = bench_params(widths);
     let d = p.depth();
@@ -161,7 +168,11 @@ pub fn bench_conv_breakdown(widths: &[usize], size: usize, reps: usize) -> Vec<L
     ls.iter_mut()
         .enumerate()
         .map(|(i, l)| {
-            let (t_min, _) = time_min_median(reps, || with_workers_awake(|| run_layer(&p, i, l)));
+            let batch = reps.max(BREAKDOWN_MIN_BATCH);
+            let (t_min, _) = time_min_median(BREAKDOWN_BATCHES, || {
+                with_workers_awake(|| (0..batch).for_each(|_| run_layer(&p, i, l)))
+            });
+            let t_min = t_min / batch as f64;
             let c_in: usize = l.parts.iter().map(|t| t.c).sum();
             let (name, shape) = match l.tconv {
                 None => (

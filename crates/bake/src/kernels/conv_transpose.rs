@@ -56,11 +56,10 @@ pub fn conv_transpose_forward_act(
     }
     let buf = layout.gather_concat(parts, in_act);
     let mut y = Tensor::scratch(c_out, 2 * h, 2 * wd);
-    for ph in 0..4 {
-        let raw = layout.gemm(&layout.pack_weights(w, ph), &buf, ph);
-        layout.interleave_act(&raw, ph, Some(b), out_act, &mut y);
-        pool::recycle(raw);
-    }
+    // The four phases' packing, products and interleave each in one parallel region.
+    let raws = layout.gemm_all(&layout.pack_weights_all(w), &buf);
+    layout.interleave_all_act(&raws, Some(b), out_act, &mut y);
+    raws.into_iter().for_each(pool::recycle);
     Ok((y, TconvCache { layout, buf }))
 }
 

@@ -250,7 +250,7 @@ impl UNet {
                 Decoder::TransposedConv => {
                     let (ci, co) = params.decoder_channels(i);
                     let l = TconvLayout::new(ci, co, 1, 1);
-                    (0..4).map(|ph| l.pack_weights(&w, ph)).collect()
+                    l.pack_weights_all(&w)
                 }
                 Decoder::UpsampleConv => vec![pack_conv_weights(params.decoder_geom(i), &w)],
             };
@@ -532,15 +532,14 @@ impl UNet {
                 let l = TconvLayout::new(ci, co, h, w);
                 let buf = l.gather_concat(parts, lrelu);
                 let mut out = Tensor::scratch(co, oh, ow);
-                for ph in 0..4 {
-                    let a = &layer.packed[ph];
-                    let raw = match plan {
-                        None => l.gemm(a, &buf, ph),
-                        Some(s) => l.gemm_planned(a, &buf, ph, &s.dec[i][ph]).0,
-                    };
-                    l.interleave_act(&raw, ph, Some(&layer.bias), act, &mut out);
-                    pool::recycle(raw);
-                }
+                let raws = match plan {
+                    None => l.gemm_all(&layer.packed, &buf),
+                    Some(s) => (0..4)
+                        .map(|ph| l.gemm_planned(&layer.packed[ph], &buf, ph, &s.dec[i][ph]).0)
+                        .collect(),
+                };
+                l.interleave_all_act(&raws, Some(&layer.bias), act, &mut out);
+                raws.into_iter().for_each(pool::recycle);
                 pool::recycle(buf);
                 Ok(out)
             }

@@ -7,7 +7,7 @@
 //! four shifted offsets, the same scheme as [`super::conv::ConvLayout`].
 
 use super::activation::Act;
-use super::gemm::{gemm_nn, PackedA};
+use super::gemm::{gemm_nn, gemm_nn_batch, NnProduct, PackedA};
 use super::region::{self, ColPlan};
 use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
@@ -98,6 +98,46 @@ impl TconvLayout {
             .map(|kk| self.weight_index(ph, 0, kk))
             .collect();
         PackedA::from_offsets(w, &rows, &cols)
+    }
+
+    /// The weights of all four phases packed as A, in one pass over the weights
+    /// ([`PackedA::from_offsets_multi`]): what [`Self::pack_weights`] gives phase by phase.
+    pub fn pack_weights_all(&self, w: &[f32]) -> Vec<PackedA> {
+        assert_eq!(w.len(), self.weight_len(), "transposed conv weights");
+        let rows: Vec<usize> = (0..self.c_out).map(|o| 16 * o).collect();
+        let cols: Vec<Vec<usize>> = (0..4)
+            .map(|ph| {
+                (0..self.c_in * 4)
+                    .map(|kk| self.weight_index(ph, 0, kk))
+                    .collect()
+            })
+            .collect();
+        let cols: Vec<&[usize]> = cols.iter().map(Vec::as_slice).collect();
+        PackedA::from_offsets_multi(w, &rows, &cols)
+    }
+
+    /// Raw GEMM outputs of all four phases ([`Self::gemm`] of each) in one parallel region.
+    /// `a`: the phases' packed weights, in phase order.
+    pub fn gemm_all(&self, a: &[PackedA], buf: &[f32]) -> Vec<Vec<f32>> {
+        assert_eq!(a.len(), 4, "four phases");
+        let rows: Vec<Vec<usize>> = (0..4).map(|ph| self.rows(ph)).collect();
+        let mut raws: Vec<Vec<f32>> = (0..4).map(|_| pool::scratch(self.c_out * self.n)).collect();
+        gemm_nn_batch(
+            raws.iter_mut()
+                .zip(a)
+                .zip(&rows)
+                .map(|((c, a), b_rows)| NnProduct {
+                    a,
+                    b: buf,
+                    b_rows,
+                    n: self.n,
+                    c,
+                    ldc: self.n,
+                    accumulate: false,
+                })
+                .collect(),
+        );
+        raws
     }
 
     /// Length of the gathered buffer.
@@ -232,6 +272,55 @@ impl TconvLayout {
     }
 }
 
+impl TconvLayout {
+    /// [`Self::interleave_act`] of all four phases' raw outputs (`raws`, in phase order) in
+    /// one pass: each output row is assembled from its two phases, biased and activated
+    /// whole, so it is written once and contiguously.
+    pub fn interleave_all_act(
+        &self,
+        raws: &[Vec<f32>],
+        bias: Option<&[f32]>,
+        act: Act,
+        out: &mut Tensor,
+    ) {
+        assert!(
+            raws.len() == 4
+                && out.c == self.c_out
+                && out.h <= 2 * self.h_in
+                && out.w <= 2 * self.w_in,
+            "tconv output shape"
+        );
+        let (oh, ow) = (out.h, out.w);
+        if ow == 0 || oh == 0 {
+            return;
+        }
+        out.data
+            .par_chunks_mut(oh * ow)
+            .with_min_len(par_min_items(oh * ow))
+            .enumerate()
+            .for_each(|(o, dst)| {
+                let b = bias.map_or(0.0, |b| b[o]);
+                let mut row = [0.0f32; 2 * ROW_BLOCK];
+                for (y2, drow) in dst.chunks_exact_mut(ow).enumerate() {
+                    let (y, py) = (y2 / 2, y2 % 2);
+                    let at = o * self.n + y * self.pitch;
+                    let (s0, s1) = (&raws[2 * py][at..], &raws[2 * py + 1][at..]);
+                    for (blk, d) in drow.chunks_mut(2 * ROW_BLOCK).enumerate() {
+                        let t = &mut row[..d.len()];
+                        let j0 = blk * ROW_BLOCK;
+                        for (i, pair) in t.chunks_mut(2).enumerate() {
+                            pair[0] = s0[j0 + i] + b;
+                            if let Some(v) = pair.get_mut(1) {
+                                *v = s1[j0 + i] + b;
+                            }
+                        }
+                        act.map(t, d);
+                    }
+                }
+            });
+    }
+}
+
 /// Transposed convolution 4x4 stride 2 padding 1: `c_in x h x w` to `c_out x 2h x 2w`.
 /// `w` is `[c_in, c_out, 4, 4]`.
 pub fn conv_transpose4s2(
@@ -255,11 +344,9 @@ pub fn conv_transpose4s2(
     }
     let buf = l.gather(x);
     let mut out = Tensor::scratch(c_out, 2 * x.h, 2 * x.w);
-    for ph in 0..4 {
-        let raw = l.gemm(&l.pack_weights(w, ph), &buf, ph);
-        l.interleave(&raw, ph, bias, &mut out);
-        pool::recycle(raw);
-    }
+    let raws = l.gemm_all(&l.pack_weights_all(w), &buf);
+    l.interleave_all_act(&raws, bias, Act::Identity, &mut out);
+    raws.into_iter().for_each(pool::recycle);
     pool::recycle(buf);
     Ok(out)
 }

@@ -181,6 +181,61 @@ impl PackedA {
         PackedA { m, k, data }
     }
 
+    /// Packs several M x K matrices that share `rows`: element (i, k) of matrix `q` is
+    /// `w[rows[i] + cols[q][k]]` (every `cols[q]` the same length). One parallel pass over the
+    /// row panels packs a panel of every matrix while the rows of `w` it reads are in cache: a
+    /// transposed convolution's four phases read every weight once between them.
+    pub fn from_offsets_multi(w: &[f32], rows: &[usize], cols: &[&[usize]]) -> Vec<Self> {
+        let m = rows.len();
+        let k = cols.first().map_or(0, |c| c.len());
+        assert!(cols.iter().all(|c| c.len() == k), "PackedA: K differs");
+        let max_col = cols
+            .iter()
+            .flat_map(|c| c.iter().copied())
+            .max()
+            .unwrap_or(0);
+        let max = rows.iter().max().copied().unwrap_or(0) + max_col;
+        assert!(
+            m == 0 || k == 0 || max < w.len(),
+            "PackedA: A out of bounds"
+        );
+        let tiles = m.div_ceil(MR);
+        // Every value is written below (rows past M as zeros), so pooled scratch will do.
+        let mut data: Vec<Vec<f32>> = cols.iter().map(|_| pool::scratch(tiles * k * MR)).collect();
+        if k > 0 {
+            // panels[t][q]: tile t's panel of matrix q.
+            let mut panels: Vec<Vec<&mut [f32]>> = (0..tiles).map(|_| Vec::new()).collect();
+            for d in data.iter_mut() {
+                for (t, p) in d.chunks_mut(k * MR).enumerate() {
+                    panels[t].push(p);
+                }
+            }
+            let per_tile = k * MR * cols.len();
+            panels
+                .into_par_iter()
+                .with_min_len(PAR_MIN_PACK.div_ceil(per_tile))
+                .enumerate()
+                .for_each(|(t, mut mats)| {
+                    let r = &rows[t * MR..(t * MR + MR).min(m)];
+                    for kk in 0..k {
+                        for (panel, c) in mats.iter_mut().zip(cols) {
+                            let c = c[kk];
+                            let dst = &mut panel[kk * MR..(kk + 1) * MR];
+                            for (d, &ro) in dst.iter_mut().zip(r) {
+                                // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is
+                                // below `w.len()` by the assert above.
+                                *d = unsafe { *w.get_unchecked(ro + c) };
+                            }
+                            dst[r.len()..].fill(0.0);
+                        }
+                    }
+                });
+        }
+        data.into_iter()
+            .map(|data| PackedA { m, k, data })
+            .collect()
+    }
+
     /// Packs the M x K matrix with element (i, k) = `f(i, k)`.
     pub fn from_fn(m: usize, k: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Self {
         let tiles = m.div_ceil(MR);
@@ -281,11 +336,24 @@ fn bounds(total: usize, step: usize) -> Vec<usize> {
 /// Chooses a grid for an `m x n` product: about four blocks per thread, columns split first in
 /// multiples of `nq`, rows in multiples of `mq` when columns run out.
 fn grid(m: usize, n: usize, macs: usize, mq: usize, nq: usize) -> (Vec<usize>, Vec<usize>) {
+    grid_shared(m, n, macs, 1, mq, nq)
+}
+
+/// [`grid`] for one of `share` products of [`gemm_nn_batch`] totalling `macs`: the blocks
+/// aimed at are shared out among them.
+fn grid_shared(
+    m: usize,
+    n: usize,
+    macs: usize,
+    share: usize,
+    mq: usize,
+    nq: usize,
+) -> (Vec<usize>, Vec<usize>) {
     let threads = rayon::current_num_threads();
     if threads <= 1 || macs < PARALLEL_MIN_MACS || m == 0 || n == 0 {
         return (vec![0, m], vec![0, n]);
     }
-    let target = 4 * threads;
+    let target = (4 * threads).div_ceil(share.max(1));
     let col_units = n.div_ceil(nq);
     let ncb = col_units.min(target);
     let cols = bounds(n, col_units.div_ceil(ncb) * nq);
@@ -310,43 +378,86 @@ pub fn gemm_nn(
     ldc: usize,
     accumulate: bool,
 ) {
-    let (m, k) = (a.m, a.k);
-    assert_eq!(
-        b_rows.len(),
-        k,
-        "gemm_nn: B has {} rows, A has {k} columns",
-        b_rows.len()
-    );
-    if m == 0 || n == 0 {
-        return;
-    }
-    assert!(
-        ldc >= n && c.len() >= (m - 1) * ldc + n,
-        "gemm_nn: C too small"
-    );
-    let max_row = b_rows.iter().copied().max().unwrap_or(0);
-    assert!(
-        k == 0 || max_row + n <= b.len(),
-        "gemm_nn: B row out of bounds"
-    );
-    let level = simd_level();
-    let (rows, cols) = grid(m, n, m * n * k, MR, 2 * NR);
-    let blocks = split_blocks(c, ldc, m, n, &rows, &cols);
-    let ctx = NnCtx {
+    gemm_nn_batch(vec![NnProduct {
         a,
         b,
         b_rows,
-        max_row,
+        n,
+        c,
+        ldc,
         accumulate,
-        level,
-    };
-    if blocks.len() == 1 {
-        blocks.into_iter().for_each(|blk| ctx.block(blk));
+    }]);
+}
+
+/// One product of [`gemm_nn_batch`]: the arguments of [`gemm_nn`].
+pub struct NnProduct<'a> {
+    /// Packed A (`m x k`).
+    pub a: &'a PackedA,
+    /// B's values.
+    pub b: &'a [f32],
+    /// Offset of each of B's `k` rows in `b`.
+    pub b_rows: &'a [usize],
+    /// Columns.
+    pub n: usize,
+    /// C (`m` rows of stride `ldc`).
+    pub c: &'a mut [f32],
+    /// Row stride of C.
+    pub ldc: usize,
+    /// Add to C instead of overwriting it.
+    pub accumulate: bool,
+}
+
+/// Several independent [`gemm_nn`] products in one parallel region: the blocks of all of them
+/// are shared out at once, so small products (a transposed convolution's four phases on a
+/// deep layer's few pixels) pay one fork and join instead of one each. Each product's blocks
+/// sum in the same order as alone: the same bits as separate calls.
+pub fn gemm_nn_batch(products: Vec<NnProduct<'_>>) {
+    let level = simd_level();
+    let count = products.len().max(1);
+    let total_macs: usize = products.iter().map(|p| p.a.m * p.n * p.a.k).sum();
+    let mut work = Vec::new();
+    for p in products {
+        let (m, k, n) = (p.a.m, p.a.k, p.n);
+        assert_eq!(
+            p.b_rows.len(),
+            k,
+            "gemm_nn: B has {} rows, A has {k} columns",
+            p.b_rows.len()
+        );
+        if m == 0 || n == 0 {
+            continue;
+        }
+        assert!(
+            p.ldc >= n && p.c.len() >= (m - 1) * p.ldc + n,
+            "gemm_nn: C too small"
+        );
+        let max_row = p.b_rows.iter().copied().max().unwrap_or(0);
+        assert!(
+            k == 0 || max_row + n <= p.b.len(),
+            "gemm_nn: B row out of bounds"
+        );
+        // The batch shares about four blocks per thread out among its products.
+        let (rows, cols) = grid_shared(m, n, total_macs, count, MR, 2 * NR);
+        let ctx = NnCtx {
+            a: p.a,
+            b: p.b,
+            b_rows: p.b_rows,
+            max_row,
+            accumulate: p.accumulate,
+            level,
+        };
+        for blk in split_blocks(p.c, p.ldc, m, n, &rows, &cols) {
+            work.push((ctx, blk));
+        }
+    }
+    if work.len() == 1 || total_macs < PARALLEL_MIN_MACS || rayon::current_num_threads() <= 1 {
+        work.into_iter().for_each(|(ctx, blk)| ctx.block(blk));
     } else {
-        blocks.into_par_iter().for_each(|blk| ctx.block(blk));
+        work.into_par_iter().for_each(|(ctx, blk)| ctx.block(blk));
     }
 }
 
+#[derive(Clone, Copy)]
 struct NnCtx<'a> {
     a: &'a PackedA,
     b: &'a [f32],
