@@ -217,6 +217,22 @@ impl PackedA {
                 .enumerate()
                 .for_each(|(t, mut mats)| {
                     let r = &rows[t * MR..(t * MR + MR).min(m)];
+                    if let Ok(r) = <[usize; MR]>::try_from(r) {
+                        // A full panel: fixed-size rows, so the copy unrolls.
+                        for kk in 0..k {
+                            for (panel, c) in mats.iter_mut().zip(cols) {
+                                let c = c[kk];
+                                let dst: &mut [f32; MR] = (&mut panel[kk * MR..(kk + 1) * MR])
+                                    .try_into()
+                                    .expect("MR values");
+                                for (d, &ro) in dst.iter_mut().zip(&r) {
+                                    // SAFETY: as below.
+                                    *d = unsafe { *w.get_unchecked(ro + c) };
+                                }
+                            }
+                        }
+                        return;
+                    }
                     for kk in 0..k {
                         for (panel, c) in mats.iter_mut().zip(cols) {
                             let c = c[kk];
