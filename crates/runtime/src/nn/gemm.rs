@@ -42,6 +42,9 @@ const RT: usize = 8;
 const CT: usize = 3;
 /// A-tile values per K block of [`gemm_nt`] (`rows x kc`, 16 KB: stays in L1).
 const NT_TILE_VALUES: usize = 4096;
+/// Columns per run of [`PackedA::from_offsets_multi`] (64 columns of a transposed conv's
+/// phase read 16 input channels' weights: 96 cache lines per tile).
+const MULTI_RUN: usize = 64;
 /// Packed values per parallel task of [`PackedA::from_offsets`].
 const PAR_MIN_PACK: usize = 1 << 15;
 /// Blocks of at most this many rows skip packing B in [`gemm_nn`] (AVX-512). Measured on
@@ -156,26 +159,8 @@ impl PackedA {
                 .with_min_len(PAR_MIN_PACK.div_ceil(k * MR))
                 .enumerate()
                 .for_each(|(t, panel)| {
-                    let r = &rows[t * MR..(t * MR + MR).min(m)];
-                    if let Ok(r) = <[usize; MR]>::try_from(r) {
-                        // A full panel: fixed-size rows, so the copy unrolls.
-                        for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
-                            let dst: &mut [f32; MR] = dst.try_into().expect("MR values");
-                            for (d, &ro) in dst.iter_mut().zip(&r) {
-                                // SAFETY: as below.
-                                *d = unsafe { *w.get_unchecked(ro + c) };
-                            }
-                        }
-                        return;
-                    }
-                    for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
-                        for (d, &ro) in dst.iter_mut().zip(r) {
-                            // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is below
-                            // `w.len()` by the assert above.
-                            *d = unsafe { *w.get_unchecked(ro + c) };
-                        }
-                        dst[r.len()..].fill(0.0);
-                    }
+                    // SAFETY: every offset read is at most `max < w.len()` (asserted above).
+                    unsafe { fill_panel(w, &rows[t * MR..(t * MR + MR).min(m)], cols, panel) }
                 });
         }
         PackedA { m, k, data }
@@ -215,34 +200,19 @@ impl PackedA {
                 .into_par_iter()
                 .with_min_len(PAR_MIN_PACK.div_ceil(per_tile))
                 .enumerate()
-                .for_each(|(t, mut mats)| {
+                .for_each(|(t, mats)| {
                     let r = &rows[t * MR..(t * MR + MR).min(m)];
-                    if let Ok(r) = <[usize; MR]>::try_from(r) {
-                        // A full panel: fixed-size rows, so the copy unrolls.
-                        for kk in 0..k {
-                            for (panel, c) in mats.iter_mut().zip(cols) {
-                                let c = c[kk];
-                                let dst: &mut [f32; MR] = (&mut panel[kk * MR..(kk + 1) * MR])
-                                    .try_into()
-                                    .expect("MR values");
-                                for (d, &ro) in dst.iter_mut().zip(&r) {
-                                    // SAFETY: as below.
-                                    *d = unsafe { *w.get_unchecked(ro + c) };
-                                }
-                            }
-                        }
-                        return;
-                    }
-                    for kk in 0..k {
+                    let mut mats = mats;
+                    // Runs of MULTI_RUN columns, matrix by matrix: the rows of `w` a run reads
+                    // stay in L1 for every matrix, and each matrix is written in sequential
+                    // runs (interleaving the matrices value by value was twice as slow).
+                    for k0 in (0..k).step_by(MULTI_RUN) {
+                        let k1 = (k0 + MULTI_RUN).min(k);
                         for (panel, c) in mats.iter_mut().zip(cols) {
-                            let c = c[kk];
-                            let dst = &mut panel[kk * MR..(kk + 1) * MR];
-                            for (d, &ro) in dst.iter_mut().zip(r) {
-                                // SAFETY: `ro <= max(rows)` and `c <= max(cols)`, whose sum is
-                                // below `w.len()` by the assert above.
-                                *d = unsafe { *w.get_unchecked(ro + c) };
-                            }
-                            dst[r.len()..].fill(0.0);
+                            let dst = &mut panel[k0 * MR..k1 * MR];
+                            // SAFETY: every offset read is at most `max < w.len()` (asserted
+                            // above).
+                            unsafe { fill_panel(w, r, &c[k0..k1], dst) }
                         }
                     }
                 });
@@ -285,6 +255,32 @@ impl PackedA {
     /// Panel of tile `t` for k in `k0..k0 + kc`.
     fn panel(&self, t: usize, k0: usize, kc: usize) -> &[f32] {
         &self.data[t * self.k * MR + k0 * MR..][..kc * MR]
+    }
+}
+
+/// Fills one packed panel (`[k][MR]`, rows past `r.len()` zero) with `w[r[i] + cols[k]]`.
+///
+/// # Safety
+/// Every `r[i] + cols[k]` must be below `w.len()`.
+#[inline(always)]
+unsafe fn fill_panel(w: &[f32], r: &[usize], cols: &[usize], panel: &mut [f32]) {
+    if let Ok(r) = <[usize; MR]>::try_from(r) {
+        // A full panel: fixed-size rows, so the copy unrolls.
+        for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
+            let dst: &mut [f32; MR] = dst.try_into().expect("MR values");
+            for (d, &ro) in dst.iter_mut().zip(&r) {
+                // SAFETY: the caller's promise.
+                *d = unsafe { *w.get_unchecked(ro + c) };
+            }
+        }
+        return;
+    }
+    for (dst, &c) in panel.chunks_exact_mut(MR).zip(cols) {
+        for (d, &ro) in dst.iter_mut().zip(r) {
+            // SAFETY: the caller's promise.
+            *d = unsafe { *w.get_unchecked(ro + c) };
+        }
+        dst[r.len()..].fill(0.0);
     }
 }
 
