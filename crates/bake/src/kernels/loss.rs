@@ -1,6 +1,10 @@
 //! Losses and regularisers with their gradients.
 
 use dnr_runtime::nn::Tensor;
+use rayon::prelude::*;
+
+/// Pixels per parallel chunk of the colour loss (fixed: the same sums for any thread count).
+const LOSS_CHUNK: usize = 4096;
 
 /// L1 loss, mean over channels and pixels, with an optional per-pixel weight:
 /// `L = sum_{c,p} w_p |pred - target| / (C * sum_p w_p)` (`w_p = 1` without weights, so the
@@ -79,7 +83,7 @@ pub fn colour_l1_loss(
 pub fn colour_l1_loss_where(
     features: &Tensor,
     target: &[f32],
-    covered: impl Fn(usize) -> bool,
+    covered: impl Fn(usize) -> bool + Sync,
     scale: f32,
     grad: &mut Tensor,
 ) -> f64 {
@@ -92,7 +96,13 @@ pub fn colour_l1_loss_where(
         grad.c == features.c && grad.h == features.h && grad.w == features.w,
         "colour l1: grad shape"
     );
-    let count = (0..n).filter(|&i| covered(i)).count();
+    // Fixed chunks of pixels in parallel; the chunk sums are added in chunk order, so the
+    // loss does not depend on the thread count.
+    let count: usize = (0..n)
+        .into_par_iter()
+        .with_min_len(LOSS_CHUNK)
+        .filter(|&i| covered(i))
+        .count();
     if count == 0 {
         return 0.0;
     }
@@ -101,14 +111,28 @@ pub fn colour_l1_loss_where(
     let mut total = 0.0f64;
     for c in 0..3 {
         let (f, t) = (features.plane(c), &target[c * n..(c + 1) * n]);
-        let gr = grad.plane_mut(c);
-        for i in (0..n).filter(|&i| covered(i)) {
-            let d = f[i] - t[i];
-            total += d.abs() as f64;
-            if d != 0.0 {
-                gr[i] += g * d.signum();
-            }
-        }
+        let sums: Vec<f64> = grad
+            .plane_mut(c)
+            .par_chunks_mut(LOSS_CHUNK)
+            .enumerate()
+            .map(|(k, gr)| {
+                let i0 = k * LOSS_CHUNK;
+                let mut s = 0.0f64;
+                for (j, gv) in gr.iter_mut().enumerate() {
+                    let i = i0 + j;
+                    if !covered(i) {
+                        continue;
+                    }
+                    let d = f[i] - t[i];
+                    s += d.abs() as f64;
+                    if d != 0.0 {
+                        *gv += g * d.signum();
+                    }
+                }
+                s
+            })
+            .collect();
+        total += sums.iter().sum::<f64>();
     }
     total / denom
 }
