@@ -212,70 +212,12 @@ impl TconvLayout {
         out
     }
 
-    /// Writes phase `ph`'s raw output (junk columns dropped, bias added) into `out`
-    /// (`c_out x 2h x 2w`).
-    pub fn interleave(&self, raw: &[f32], ph: usize, bias: Option<&[f32]>, out: &mut Tensor) {
-        self.interleave_act(raw, ph, bias, Act::Identity, out);
-    }
-
-    /// [`Self::interleave`] with `act` applied to every value (after the bias). `out` may be
-    /// smaller than `2h x 2w` (a top-left crop): pixels outside it are dropped.
-    pub fn interleave_act(
-        &self,
-        raw: &[f32],
-        ph: usize,
-        bias: Option<&[f32]>,
-        act: Act,
-        out: &mut Tensor,
-    ) {
-        assert!(
-            out.c == self.c_out && out.h <= 2 * self.h_in && out.w <= 2 * self.w_in,
-            "tconv output shape"
-        );
-        let (py, px) = (ph / 2, ph % 2);
-        let (ow, oh) = (out.w, out.h);
-        if ow == 0 || oh == 0 {
-            return;
-        }
-        out.data
-            .par_chunks_mut(oh * ow)
-            .with_min_len(par_min_items(oh * ow))
-            .enumerate()
-            .for_each(|(o, dst)| {
-                let b = bias.map_or(0.0, |b| b[o]);
-                let src = &raw[o * self.n..(o + 1) * self.n];
-                for y in (0..self.h_in).take_while(|y| 2 * y + py < oh) {
-                    let drow = &mut dst[(2 * y + py) * ow..(2 * y + py + 1) * ow];
-                    let cols = (ow - px).div_ceil(2);
-                    let s = &src[y * self.pitch..y * self.pitch + cols];
-                    if act == Act::Identity {
-                        drow[px..]
-                            .chunks_mut(2)
-                            .zip(s)
-                            .for_each(|(d, &v)| d[0] = v + b);
-                        continue;
-                    }
-                    // The activation on contiguous values (so it vectorises), then every
-                    // other output column.
-                    let (mut biased, mut done) = ([0.0f32; ROW_BLOCK], [0.0f32; ROW_BLOCK]);
-                    for (dc, sc) in drow[px..]
-                        .chunks_mut(2 * ROW_BLOCK)
-                        .zip(s.chunks(ROW_BLOCK))
-                    {
-                        let (t, u) = (&mut biased[..sc.len()], &mut done[..sc.len()]);
-                        t.iter_mut().zip(sc).for_each(|(t, &v)| *t = v + b);
-                        act.map(t, u);
-                        dc.chunks_mut(2).zip(u.iter()).for_each(|(d, &v)| d[0] = v);
-                    }
-                }
-            });
-    }
-}
-
-impl TconvLayout {
-    /// [`Self::interleave_act`] of all four phases' raw outputs (`raws`, in phase order) in
-    /// one pass: each output row is assembled from its two phases, biased and activated
-    /// whole, so it is written once and contiguously.
+    /// Writes the four phases' raw outputs (`raws`, in phase order; junk columns dropped)
+    /// into `out` (`c_out x 2h x 2w`) with the bias added and `act` applied: output pixel
+    /// (2y + py, 2x + px) is phase (py, px)'s column (y, x). Each output row is assembled
+    /// from its two phases, biased and activated whole, so it is written once and
+    /// contiguously. `out` may be smaller than `2h x 2w` (a top-left crop): pixels outside
+    /// it are dropped.
     pub fn interleave_all_act(
         &self,
         raws: &[Vec<f32>],
