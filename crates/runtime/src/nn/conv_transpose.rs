@@ -32,7 +32,7 @@ pub struct TconvLayout {
     pub n: usize,
 }
 
-/// Values per activation block of [`TconvLayout::interleave_act`].
+/// Values per activation block of [`TconvLayout::interleave_all_act`] (half an output row block).
 const ROW_BLOCK: usize = 64;
 
 impl TconvLayout {
