@@ -45,7 +45,7 @@ const NT_TILE_VALUES: usize = 4096;
 /// Columns per run of [`PackedA::from_offsets_multi`] (64 columns of a transposed conv's
 /// phase read 16 input channels' weights: 96 cache lines per tile).
 const MULTI_RUN: usize = 64;
-/// Packed values per parallel task of [`PackedA::from_offsets`].
+/// Packed values per parallel task of [`PackedA::from_offsets_multi`].
 const PAR_MIN_PACK: usize = 1 << 15;
 /// Blocks of at most this many rows skip packing B in [`gemm_nn`] (AVX-512). Measured on
 /// Zen 5 (48 KB L1): reading B in place wins up to M = 64 (4 x 128 x 16512: 65 -> 280
@@ -145,25 +145,9 @@ impl PackedA {
     /// Packs the M x K matrix with element (i, k) = `w[rows[i] + cols[k]]` (M = `rows.len()`,
     /// K = `cols.len()`): the weight layouts of every convolution are of this form.
     pub fn from_offsets(w: &[f32], rows: &[usize], cols: &[usize]) -> Self {
-        let (m, k) = (rows.len(), cols.len());
-        let max = rows.iter().max().copied().unwrap_or(0) + cols.iter().max().copied().unwrap_or(0);
-        assert!(
-            m == 0 || k == 0 || max < w.len(),
-            "PackedA: A out of bounds"
-        );
-        let tiles = m.div_ceil(MR);
-        // Every value is written below (rows past M as zeros), so pooled scratch will do.
-        let mut data = pool::scratch(tiles * k * MR);
-        if k > 0 {
-            data.par_chunks_mut(k * MR)
-                .with_min_len(PAR_MIN_PACK.div_ceil(k * MR))
-                .enumerate()
-                .for_each(|(t, panel)| {
-                    // SAFETY: every offset read is at most `max < w.len()` (asserted above).
-                    unsafe { fill_panel(w, &rows[t * MR..(t * MR + MR).min(m)], cols, panel) }
-                });
-        }
-        PackedA { m, k, data }
+        Self::from_offsets_multi(w, rows, &[cols])
+            .pop()
+            .expect("one matrix asked, one packed")
     }
 
     /// Packs several M x K matrices that share `rows`: element (i, k) of matrix `q` is
@@ -200,9 +184,8 @@ impl PackedA {
                 .into_par_iter()
                 .with_min_len(PAR_MIN_PACK.div_ceil(per_tile))
                 .enumerate()
-                .for_each(|(t, mats)| {
+                .for_each(|(t, mut mats)| {
                     let r = &rows[t * MR..(t * MR + MR).min(m)];
-                    let mut mats = mats;
                     // Runs of MULTI_RUN columns, matrix by matrix: the rows of `w` a run reads
                     // stay in L1 for every matrix, and each matrix is written in sequential
                     // runs (interleaving the matrices value by value was twice as slow).
