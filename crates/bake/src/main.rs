@@ -7,6 +7,11 @@ use clap::Parser;
 use dnr_bake::bake::{bake, BakeOptions};
 use dnr_bake::train::config::{Arch, Preset, TrainConfig, MLP_DEFAULT_WIDTHS};
 
+/// Large buffers (texture levels, optimiser moments, feature planes) on cache-line
+/// boundaries: see `dnr_runtime::alloc`.
+#[global_allocator]
+static ALLOC: dnr_runtime::alloc::LineAligned = dnr_runtime::alloc::LineAligned;
+
 /// Train a neural texture and deferred neural renderer from posed photographs and write one
 /// self-contained glTF asset (EXT_deferred_neural_rendering, with a plain fallback material).
 ///

@@ -3,6 +3,11 @@
 
 mod cmd;
 
+/// Large buffers (texture levels, optimiser moments, feature planes) on cache-line
+/// boundaries: see `dnr_runtime::alloc`.
+#[global_allocator]
+static ALLOC: dnr_runtime::alloc::LineAligned = dnr_runtime::alloc::LineAligned;
+
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};

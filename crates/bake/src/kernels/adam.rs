@@ -1,7 +1,7 @@
 //! Adam (PyTorch's formulation, with bias correction) for dense parameter groups, and a lazy
 //! row-sparse variant for neural-texture texels.
 
-use super::prefetch::prefetch;
+use dnr_runtime::nn::simd::prefetch;
 use dnr_runtime::nn::simd::widest;
 use rayon::prelude::*;
 
@@ -36,15 +36,14 @@ const CONSTS_SLOTS: usize = 16;
 /// Elements per parallel chunk (fixed, so results do not depend on the thread count).
 const CHUNK: usize = 1 << 14;
 
-/// The per-step constants of an Adam update: `step_size = lr / (1 - beta1^t)` and
-/// `bc2_sqrt = sqrt(1 - beta2^t)`.
+/// The per-step constants of an Adam update, with `step_size = lr / (1 - beta1^t)` and
+/// `bc2 = sqrt(1 - beta2^t)`: `step = step_size * bc2` and `eps_bc2 = eps * bc2`.
 #[derive(Clone, Copy)]
 struct StepConsts {
     beta1: f32,
     beta2: f32,
-    eps: f32,
-    step_size: f32,
-    bc2_sqrt: f32,
+    step: f32,
+    eps_bc2: f32,
 }
 
 impl StepConsts {
@@ -54,22 +53,26 @@ impl StepConsts {
     #[inline(never)]
     fn new(cfg: &AdamConfig, t: u64) -> Self {
         let t = t.min(i32::MAX as u64) as i32;
+        let step_size = cfg.lr / (1.0 - cfg.beta1.powi(t));
+        let bc2 = (1.0 - cfg.beta2.powi(t)).sqrt();
         StepConsts {
             beta1: cfg.beta1,
             beta2: cfg.beta2,
-            eps: cfg.eps,
-            step_size: cfg.lr / (1.0 - cfg.beta1.powi(t)),
-            bc2_sqrt: (1.0 - cfg.beta2.powi(t)).sqrt(),
+            step: step_size * bc2,
+            eps_bc2: cfg.eps * bc2,
         }
     }
 
-    /// One Adam update of a single value (PyTorch's order of operations).
+    /// One Adam update of a single value. PyTorch computes
+    /// `step_size * m / (sqrt(v) / bc2 + eps)`; multiplying through by `bc2` gives the same
+    /// value (to rounding) with one division instead of two, a third less of the arithmetic
+    /// that bounds the texel update (square roots and divisions).
     #[inline(always)]
     fn update(&self, p: &mut f32, g: f32, m: &mut f32, v: &mut f32) {
         *m = self.beta1 * *m + (1.0 - self.beta1) * g;
         *v = self.beta2 * *v + (1.0 - self.beta2) * g * g;
-        let denom = v.sqrt() / self.bc2_sqrt + self.eps;
-        *p -= self.step_size * *m / denom;
+        let denom = v.sqrt() + self.eps_bc2;
+        *p -= self.step * *m / denom;
     }
 }
 

@@ -11,7 +11,6 @@ pub mod dense;
 pub mod loss;
 pub mod mlp;
 pub mod norm;
-pub mod prefetch;
 pub mod sample;
 pub mod sh;
 pub mod unet;

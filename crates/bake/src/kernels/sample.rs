@@ -29,8 +29,8 @@ use dnr_runtime::texture::{
 use rayon::prelude::*;
 
 use super::adam::{SparseAdam, SparseAdamRows};
-use super::prefetch::prefetch;
 use dnr_runtime::nn::gemm::SimdLevel;
+use dnr_runtime::nn::simd::prefetch;
 use dnr_runtime::nn::simd::widest_up_to;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).

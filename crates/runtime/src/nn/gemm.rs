@@ -21,6 +21,7 @@
 //! safe scalar twin that [`set_simd_cap`] can force, so tests run both paths.
 #![allow(unsafe_code)]
 
+use super::simd::prefetch;
 use super::tensor::pool;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
@@ -561,6 +562,16 @@ impl NnCtx<'_> {
                         for r0 in (ic..ic + mcw).step_by(MR) {
                             let mv = MR.min(ic + mcw - r0);
                             let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
+                            // The tile's C lines, while the kernel runs: a block's MC rows are
+                            // more streams than the hardware prefetchers follow, and with a
+                            // short K (weight gradients of small planes) the store waited on
+                            // memory for as long as the kernel computed.
+                            let js = jc + s * NR;
+                            let cols = (g * NR).min(ncw - s * NR);
+                            for row in &blk.rows[r0..r0 + mv] {
+                                prefetch(row, js);
+                                prefetch(row, js + cols - 1);
+                            }
                             if g == 1 {
                                 self.kernel(mv, kc, ap, bp, &mut tiles[0]);
                             } else {

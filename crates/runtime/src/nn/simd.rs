@@ -1,4 +1,4 @@
-//! Running an element-wise loop with the widest vectors the CPU has.
+//! Running an element-wise loop with the widest vectors the CPU has, and software prefetch.
 //!
 //! The crates are built for baseline x86-64 (SSE2: 4 lanes, no blends), so loops that are
 //! bound by arithmetic (tanh's polynomial, Adam's square root and divisions, the norms'
@@ -41,4 +41,22 @@ pub fn widest_up_to<R>(cap: SimdLevel, f: impl FnOnce() -> R) -> R {
         }
     }
     f()
+}
+
+/// Hints that `data[i..]` will be touched soon (for rows scattered over arrays far larger
+/// than the caches, or more streams than the hardware prefetchers follow); nothing happens
+/// when `i` is out of range or off x86_64.
+#[inline(always)]
+pub fn prefetch<T>(data: &[T], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if i < data.len() {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        // SAFETY: SSE is part of x86_64; a prefetch is a hint that never faults, and the
+        // address is inside `data` anyway.
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(data[i..].as_ptr().cast());
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (data, i);
 }
