@@ -8,6 +8,7 @@ use nn_common::*;
 use dnr_runtime::nn::activation::{leaky_relu, tanh};
 use dnr_runtime::nn::conv::{conv2d, ConvGeom};
 use dnr_runtime::nn::dense::dense;
+use dnr_runtime::nn::gemm::AOperand;
 use dnr_runtime::nn::norm::instance_norm;
 use dnr_runtime::nn::upsample::upsample_nearest2;
 use dnr_runtime::nn::Tensor;
@@ -220,16 +221,28 @@ fn conv_transpose_batched_phases_give_the_phase_by_phase_bits() {
                         }
                     }
                 }
-                let mut got = Tensor::zeros(co, oh, ow);
-                let raws = l.gemm_all(&l.pack_weights_all(&wt), &buf);
-                l.interleave_all_act(&raws, Some(&b), act, &mut got);
-                assert!(
-                    got.data
-                        .iter()
-                        .zip(&want.data)
-                        .all(|(g, w)| g.to_bits() == w.to_bits()),
-                    "{ci}->{co} on {h}x{w}, {act:?}, out {oh}x{ow}: batched phases differ"
-                );
+                // Batched, the weights packed in one pass and read in place (training).
+                let packed = l.pack_weights_all(&wt);
+                let (rows, cols) = l.weight_offsets();
+                let operands: [Vec<AOperand<'_>>; 2] = [
+                    packed.iter().map(AOperand::from).collect(),
+                    cols.iter()
+                        .map(|c| AOperand::offsets(&wt, &rows, c))
+                        .collect(),
+                ];
+                for (a, how) in operands.iter().zip(["packed", "in place"]) {
+                    let mut got = Tensor::zeros(co, oh, ow);
+                    let raws = l.gemm_all(a, &buf);
+                    l.interleave_all_act(&raws, Some(&b), act, &mut got);
+                    assert!(
+                        got.data
+                            .iter()
+                            .zip(&want.data)
+                            .all(|(g, w)| g.to_bits() == w.to_bits()),
+                        "{ci}->{co} on {h}x{w}, {act:?}, out {oh}x{ow}: batched phases ({how}) \
+                         differ"
+                    );
+                }
             }
         }
     }

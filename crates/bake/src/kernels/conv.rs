@@ -2,7 +2,7 @@
 //! backward needs, and backward.
 
 use dnr_runtime::nn::activation::Act;
-use dnr_runtime::nn::conv::{pack_conv_weights, weight_index_parts, ConvGeom, ConvLayout};
+use dnr_runtime::nn::conv::{weight_index_parts, ConvGeom, ConvLayout};
 use dnr_runtime::nn::gemm::{gemm_nn, gemm_nt, PackedA};
 use dnr_runtime::nn::norm::NormStats;
 use dnr_runtime::nn::tensor::{par_min_items, pool};
@@ -61,7 +61,9 @@ pub fn conv_forward_act(
     }
     let layout = ConvLayout::new(geom, size.0, size.1)?;
     let buf = layout.gather_act(x, act);
-    let raw = layout.gemm(&pack_conv_weights(geom, w), &buf);
+    // The weights change every step: read in place where packing them would cost as much as
+    // the product (the same bits as the runtime's weights packed at load).
+    let raw = layout.gemm_once(w, &buf);
     let (y, stats) = if with_stats {
         let (y, s) = layout.finish_stats(&raw, Some(b));
         (y, Some(s))

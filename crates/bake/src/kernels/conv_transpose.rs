@@ -3,7 +3,7 @@
 
 use super::conv::{bias_grad, conv_weight_grad, ConvCache};
 use dnr_runtime::nn::activation::Act;
-use dnr_runtime::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
+use dnr_runtime::nn::conv::{ConvGeom, ConvLayout};
 use dnr_runtime::nn::conv_transpose::TconvLayout;
 use dnr_runtime::nn::tensor::{par_min_items, pool};
 use dnr_runtime::nn::{NnError, Tensor};
@@ -56,8 +56,9 @@ pub fn conv_transpose_forward_act(
     }
     let buf = layout.gather_concat(parts, in_act);
     let mut y = Tensor::scratch(c_out, 2 * h, 2 * wd);
-    // The four phases' packing, products and interleave each in one parallel region.
-    let raws = layout.gemm_all(&layout.pack_weights_all(w), &buf);
+    // The four phases' products and interleave each in one parallel region, the weights read
+    // in place on few columns (see `conv_forward_act`).
+    let raws = layout.gemm_all_once(w, &buf);
     layout.interleave_all_act(&raws, Some(b), out_act, &mut y);
     raws.into_iter().for_each(pool::recycle);
     Ok((y, TconvCache { layout, buf }))
@@ -128,7 +129,7 @@ pub fn conv_transpose_backward_parts(
         if dx_parts.is_empty() {
             return;
         }
-        let raw = adj.layout.gemm(&pack_conv_weights(g, w), &adj.buf);
+        let raw = adj.layout.gemm_once(w, &adj.buf);
         add_unpitched(&adj.layout, &raw, dx_parts);
         pool::recycle(raw);
     };

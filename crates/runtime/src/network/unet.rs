@@ -10,7 +10,7 @@ use crate::nn::activation::{Act, LEAKY_SLOPE};
 use crate::nn::awake::with_workers_awake;
 use crate::nn::conv::{pack_conv_weights, ConvGeom, ConvLayout};
 use crate::nn::conv_transpose::TconvLayout;
-use crate::nn::gemm::PackedA;
+use crate::nn::gemm::{AOperand, PackedA};
 use crate::nn::norm::{instance_norm, normalize};
 use crate::nn::region::{Classes, ColPlan};
 use crate::nn::tensor::pool;
@@ -533,7 +533,11 @@ impl UNet {
                 let buf = l.gather_concat(parts, lrelu);
                 let mut out = Tensor::scratch(co, oh, ow);
                 let raws = match plan {
-                    None => l.gemm_all(&layer.packed, &buf),
+                    None => {
+                        let a: Vec<AOperand<'_>> =
+                            layer.packed.iter().map(AOperand::from).collect();
+                        l.gemm_all(&a, &buf)
+                    }
                     Some(s) => (0..4)
                         .map(|ph| l.gemm_planned(&layer.packed[ph], &buf, ph, &s.dec[i][ph]).0)
                         .collect(),

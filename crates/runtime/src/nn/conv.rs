@@ -11,7 +11,7 @@
 //! - [`LayoutKind::Im2col`] (anything else): one plane per (c, ky, kx), one tap.
 
 use super::activation::{lrelu, tanh_f32, Act};
-use super::gemm::{gemm_nn, PackedA};
+use super::gemm::{gemm_nn, AOperand, PackedA, IN_PLACE_A_MAX_N};
 use super::norm::{plane_stats, NormStats};
 use super::region::{self, ColPlan};
 use super::tensor::{par_min_items, pool};
@@ -198,11 +198,18 @@ pub fn weight_index(geom: ConvGeom, kind: LayoutKind, kk: usize) -> usize {
 /// [`LayoutKind::for_geom`]; valid for every input size.
 pub fn pack_conv_weights(geom: ConvGeom, w: &[f32]) -> PackedA {
     assert_eq!(w.len(), geom.weight_len(), "conv weights");
+    let (rows, cols) = conv_weight_offsets(geom);
+    PackedA::from_offsets(w, &rows, &cols)
+}
+
+/// Where element (o, kk) of the GEMM's A operand lies in OIHW weights: `rows[o] + cols[kk]`
+/// (what [`pack_conv_weights`] packs; `AOperand::offsets` reads it in place, same bits).
+pub fn conv_weight_offsets(geom: ConvGeom) -> (Vec<usize>, Vec<usize>) {
     let kind = LayoutKind::for_geom(geom);
     let per_o = geom.c_in * geom.k * geom.k;
-    let map: Vec<usize> = (0..per_o).map(|kk| weight_index(geom, kind, kk)).collect();
+    let cols: Vec<usize> = (0..per_o).map(|kk| weight_index(geom, kind, kk)).collect();
     let rows: Vec<usize> = (0..geom.c_out).map(|o| o * per_o).collect();
-    PackedA::from_offsets(w, &rows, &map)
+    (rows, cols)
 }
 
 /// The weight index of GEMM row `p * taps + t` split as `plane_part(p) + tap_part(t)` (it is a
@@ -502,11 +509,25 @@ impl ConvLayout {
         region::gemm_planned(a, buf, &self.rows(), self.n, plan)
     }
 
-    /// Raw GEMM output (`c_out x n`, row stride `n`) of packed weights on a gathered buffer.
-    pub fn gemm(&self, a: &PackedA, buf: &[f32]) -> Vec<f32> {
+    /// Raw GEMM output (`c_out x n`, row stride `n`) of the weights (packed, or read in place
+    /// through [`conv_weight_offsets`]) on a gathered buffer.
+    pub fn gemm<'a>(&self, a: impl Into<AOperand<'a>>, buf: &[f32]) -> Vec<f32> {
         let mut out = pool::scratch(self.geom.c_out * self.n);
         gemm_nn(a, buf, &self.rows(), self.n, &mut out, self.n, false);
         out
+    }
+
+    /// [`Self::gemm`] of OIHW weights used for this one product (training, where they change
+    /// every step; [`conv2d`]): read in place on few columns, where packing them cost as much as
+    /// the product, packed otherwise ([`IN_PLACE_A_MAX_N`]). The same bits either way, and as
+    /// with weights packed once.
+    pub fn gemm_once(&self, w: &[f32], buf: &[f32]) -> Vec<f32> {
+        let (rows, cols) = conv_weight_offsets(self.geom);
+        if self.n <= IN_PLACE_A_MAX_N {
+            self.gemm(AOperand::offsets(w, &rows, &cols), buf)
+        } else {
+            self.gemm(&PackedA::from_offsets(w, &rows, &cols), buf)
+        }
     }
 
     /// [`Self::finish`] that also returns the instance-norm statistics of every output channel
@@ -582,7 +603,7 @@ pub fn conv2d(
     geom.check(x, w, bias)?;
     let layout = ConvLayout::new(geom, x.h, x.w)?;
     let buf = layout.gather(x);
-    let raw = layout.gemm(&layout.pack_weights(w), &buf);
+    let raw = layout.gemm_once(w, &buf);
     pool::recycle(buf);
     let y = layout.finish(&raw, bias);
     pool::recycle(raw);

@@ -7,7 +7,7 @@
 //! four shifted offsets, the same scheme as [`super::conv::ConvLayout`].
 
 use super::activation::Act;
-use super::gemm::{gemm_nn, gemm_nn_batch, NnProduct, PackedA};
+use super::gemm::{gemm_nn, gemm_nn_batch, AOperand, NnProduct, PackedA, IN_PLACE_A_MAX_N};
 use super::region::{self, ColPlan};
 use super::tensor::{par_min_items, pool};
 use super::{NnError, Tensor};
@@ -100,25 +100,31 @@ impl TconvLayout {
         PackedA::from_offsets(w, &rows, &cols)
     }
 
+    /// Where element (o, kk) of phase `ph`'s A lies in the weights: `rows[o] + cols[ph][kk]`
+    /// (`weight_index(ph, o, kk)` is a sum of the two).
+    pub fn weight_offsets(&self) -> (Vec<usize>, [Vec<usize>; 4]) {
+        let rows: Vec<usize> = (0..self.c_out).map(|o| 16 * o).collect();
+        let cols = std::array::from_fn(|ph| {
+            (0..self.c_in * 4)
+                .map(|kk| self.weight_index(ph, 0, kk))
+                .collect()
+        });
+        (rows, cols)
+    }
+
     /// The weights of all four phases packed as A, in one pass over the weights
     /// ([`PackedA::from_offsets_multi`]): what [`Self::pack_weights`] gives phase by phase.
     pub fn pack_weights_all(&self, w: &[f32]) -> Vec<PackedA> {
         assert_eq!(w.len(), self.weight_len(), "transposed conv weights");
-        let rows: Vec<usize> = (0..self.c_out).map(|o| 16 * o).collect();
-        let cols: Vec<Vec<usize>> = (0..4)
-            .map(|ph| {
-                (0..self.c_in * 4)
-                    .map(|kk| self.weight_index(ph, 0, kk))
-                    .collect()
-            })
-            .collect();
+        let (rows, cols) = self.weight_offsets();
         let cols: Vec<&[usize]> = cols.iter().map(Vec::as_slice).collect();
         PackedA::from_offsets_multi(w, &rows, &cols)
     }
 
     /// Raw GEMM outputs of all four phases ([`Self::gemm`] of each) in one parallel region.
-    /// `a`: the phases' packed weights, in phase order.
-    pub fn gemm_all(&self, a: &[PackedA], buf: &[f32]) -> Vec<Vec<f32>> {
+    /// `a`: the phases' A operands, in phase order (packed, or the weights read in place
+    /// through [`Self::weight_offsets`]: the same bits).
+    pub fn gemm_all(&self, a: &[AOperand<'_>], buf: &[f32]) -> Vec<Vec<f32>> {
         assert_eq!(a.len(), 4, "four phases");
         let rows: Vec<Vec<usize>> = (0..4).map(|ph| self.rows(ph)).collect();
         let mut raws: Vec<Vec<f32>> = (0..4).map(|_| pool::scratch(self.c_out * self.n)).collect();
@@ -126,7 +132,7 @@ impl TconvLayout {
             raws.iter_mut()
                 .zip(a)
                 .zip(&rows)
-                .map(|((c, a), b_rows)| NnProduct {
+                .map(|((c, &a), b_rows)| NnProduct {
                     a,
                     b: buf,
                     b_rows,
@@ -138,6 +144,23 @@ impl TconvLayout {
                 .collect(),
         );
         raws
+    }
+
+    /// [`Self::gemm_all`] of weights used for this one product (training; [`conv_transpose4s2`]):
+    /// read in place on few columns, packed in one pass otherwise (as `ConvLayout::gemm_once`).
+    pub fn gemm_all_once(&self, w: &[f32], buf: &[f32]) -> Vec<Vec<f32>> {
+        if self.n > IN_PLACE_A_MAX_N {
+            let packed = self.pack_weights_all(w);
+            let a: Vec<AOperand<'_>> = packed.iter().map(AOperand::from).collect();
+            return self.gemm_all(&a, buf);
+        }
+        assert_eq!(w.len(), self.weight_len(), "transposed conv weights");
+        let (rows, cols) = self.weight_offsets();
+        let a: Vec<AOperand<'_>> = cols
+            .iter()
+            .map(|c| AOperand::offsets(w, &rows, c))
+            .collect();
+        self.gemm_all(&a, buf)
     }
 
     /// Length of the gathered buffer.
@@ -286,7 +309,7 @@ pub fn conv_transpose4s2(
     }
     let buf = l.gather(x);
     let mut out = Tensor::scratch(c_out, 2 * x.h, 2 * x.w);
-    let raws = l.gemm_all(&l.pack_weights_all(w), &buf);
+    let raws = l.gemm_all_once(w, &buf);
     l.interleave_all_act(&raws, bias, Act::Identity, &mut out);
     raws.into_iter().for_each(pool::recycle);
     pool::recycle(buf);

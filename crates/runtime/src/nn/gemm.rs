@@ -52,6 +52,11 @@ const PAR_MIN_PACK: usize = 1 << 15;
 /// Zen 5 (48 KB L1): reading B in place wins up to M = 64 (4 x 128 x 16512: 65 -> 280
 /// GFLOP/s, 16 x 256 x 16512: 240 -> 410); for large M packing wins (1024^3: 400 vs 240).
 const DIRECT_MAX_ROWS: usize = MC;
+/// Products with at most this many columns read weights used once in place
+/// ([`AOperand::offsets`]) instead of packing them first: each A value is then read about
+/// N / 32 times, and past a few thousand columns packed panels (whole cache lines, sequential)
+/// win back the packing pass (a 256 crop's first layers, one thread: 4-14% slower in place).
+pub const IN_PLACE_A_MAX_N: usize = 2048;
 /// Below this many multiply-adds a product runs on the calling thread.
 const PARALLEL_MIN_MACS: usize = 1 << 19;
 
@@ -274,6 +279,148 @@ impl Drop for PackedA {
     }
 }
 
+/// The A operand of [`gemm_nn`]: packed, or read where it lies.
+#[derive(Clone, Copy, Debug)]
+pub enum AOperand<'a> {
+    /// Packed once ([`PackedA`]): weights that many products reuse (inference).
+    Packed(&'a PackedA),
+    /// Element (i, k) = `w[rows[i] + cols[k]]`, read in place by the micro-kernels: the
+    /// weights of one training step, used by one product. Packing them first (a pass that
+    /// waits on memory, a value at a time) cost as much as the product itself on the deep
+    /// layers' few pixels. Same values in the same order as [`PackedA::from_offsets`] of the
+    /// same arguments, so the same bits.
+    Offsets {
+        /// The values.
+        w: &'a [f32],
+        /// Offset of each of the M rows.
+        rows: &'a [usize],
+        /// Offset of each of the K columns.
+        cols: &'a [usize],
+    },
+}
+
+impl<'a> From<&'a PackedA> for AOperand<'a> {
+    fn from(a: &'a PackedA) -> Self {
+        AOperand::Packed(a)
+    }
+}
+
+impl<'a> AOperand<'a> {
+    /// A read in place; panics if an element lies outside `w` (caller bug).
+    pub fn offsets(w: &'a [f32], rows: &'a [usize], cols: &'a [usize]) -> Self {
+        if let (Some(r), Some(c)) = (rows.iter().max(), cols.iter().max()) {
+            assert!(r + c < w.len(), "AOperand: A out of bounds");
+        }
+        AOperand::Offsets { w, rows, cols }
+    }
+
+    /// Rows (M).
+    pub fn m(&self) -> usize {
+        match self {
+            AOperand::Packed(a) => a.m,
+            AOperand::Offsets { rows, .. } => rows.len(),
+        }
+    }
+
+    /// Columns (K).
+    pub fn k(&self) -> usize {
+        match self {
+            AOperand::Packed(a) => a.k,
+            AOperand::Offsets { cols, .. } => cols.len(),
+        }
+    }
+
+    /// Tile `t` (rows `t * MR..`, at most MR) for k in `k0..k0 + kc`.
+    fn panel(&self, t: usize, k0: usize, kc: usize) -> APanel<'a> {
+        match *self {
+            AOperand::Packed(a) => APanel::Packed(a.panel(t, k0, kc)),
+            AOperand::Offsets { w, rows, cols } => APanel::Offsets {
+                w,
+                rows: &rows[t * MR..(t * MR + MR).min(rows.len())],
+                cols: &cols[k0..k0 + kc],
+            },
+        }
+    }
+}
+
+/// One tile of A over one K block, as the micro-kernels read it.
+#[derive(Clone, Copy)]
+enum APanel<'a> {
+    /// `[k][MR]`, `kc * MR` values.
+    Packed(&'a [f32]),
+    /// (r, k) = `w[rows[r] + cols[k]]`, in bounds (checked by [`AOperand::offsets`]).
+    Offsets {
+        w: &'a [f32],
+        rows: &'a [usize],
+        cols: &'a [usize],
+    },
+}
+
+impl APanel<'_> {
+    /// Element (r, k), bounds-checked (the scalar kernel's read).
+    fn at(&self, r: usize, k: usize) -> f32 {
+        match self {
+            APanel::Packed(a) => a[k * MR + r],
+            APanel::Offsets { w, rows, cols } => rows.get(r).map_or(0.0, |&o| w[o + cols[k]]),
+        }
+    }
+}
+
+/// How a SIMD micro-kernel reads its A tile: step k's value of row r, then the next step.
+#[cfg(target_arch = "x86_64")]
+trait ATile: Copy {
+    /// Row `r`'s value at the current step.
+    ///
+    /// # Safety
+    /// `r` must be a row of the tile and the current step one of its `kc`.
+    unsafe fn get(&self, r: usize) -> f32;
+    /// Moves to the next step.
+    ///
+    /// # Safety
+    /// As `get`, for the step moved to, unless no `get` follows.
+    unsafe fn advance(&mut self);
+}
+
+/// A packed tile: one pointer that moves MR values a step.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct PackedTile(*const f32);
+
+#[cfg(target_arch = "x86_64")]
+impl ATile for PackedTile {
+    #[inline(always)]
+    unsafe fn get(&self, r: usize) -> f32 {
+        // SAFETY: the caller's promise; the panel holds `kc * MR` values.
+        unsafe { *self.0.add(r) }
+    }
+    #[inline(always)]
+    unsafe fn advance(&mut self) {
+        self.0 = self.0.wrapping_add(MR);
+    }
+}
+
+/// A tile read in place: one base pointer per row and a cursor into the column offsets.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct OffsetTile {
+    base: [*const f32; MR],
+    col: *const usize,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl ATile for OffsetTile {
+    #[inline(always)]
+    unsafe fn get(&self, r: usize) -> f32 {
+        // SAFETY: the caller's promise: row r exists and `*col` is one of the panel's column
+        // offsets, and every `rows[r] + cols[k]` is inside `w` (checked by AOperand::offsets).
+        unsafe { *self.base[r].add(*self.col) }
+    }
+    #[inline(always)]
+    unsafe fn advance(&mut self) {
+        self.col = self.col.wrapping_add(1);
+    }
+}
+
 /// A rectangle of C owned by one task: rows `i0..i0 + rows.len()`, columns `j0..j0 + width`.
 struct Block<'c> {
     i0: usize,
@@ -365,8 +512,8 @@ fn grid_shared(
 /// overwritten.
 ///
 /// Panics if a row of B or C is out of bounds or `b_rows.len() != a.k()` (caller bugs).
-pub fn gemm_nn(
-    a: &PackedA,
+pub fn gemm_nn<'a>(
+    a: impl Into<AOperand<'a>>,
     b: &[f32],
     b_rows: &[usize],
     n: usize,
@@ -375,7 +522,7 @@ pub fn gemm_nn(
     accumulate: bool,
 ) {
     gemm_nn_batch(vec![NnProduct {
-        a,
+        a: a.into(),
         b,
         b_rows,
         n,
@@ -387,8 +534,8 @@ pub fn gemm_nn(
 
 /// One product of [`gemm_nn_batch`]: the arguments of [`gemm_nn`].
 pub struct NnProduct<'a> {
-    /// Packed A (`m x k`).
-    pub a: &'a PackedA,
+    /// A (`m x k`).
+    pub a: AOperand<'a>,
     /// B's values.
     pub b: &'a [f32],
     /// Offset of each of B's `k` rows in `b`.
@@ -410,10 +557,10 @@ pub struct NnProduct<'a> {
 pub fn gemm_nn_batch(products: Vec<NnProduct<'_>>) {
     let level = simd_level();
     let count = products.len().max(1);
-    let total_macs: usize = products.iter().map(|p| p.a.m * p.n * p.a.k).sum();
+    let total_macs: usize = products.iter().map(|p| p.a.m() * p.n * p.a.k()).sum();
     let mut work = Vec::new();
     for p in products {
-        let (m, k, n) = (p.a.m, p.a.k, p.n);
+        let (m, k, n) = (p.a.m(), p.a.k(), p.n);
         assert_eq!(
             p.b_rows.len(),
             k,
@@ -455,7 +602,7 @@ pub fn gemm_nn_batch(products: Vec<NnProduct<'_>>) {
 
 #[derive(Clone, Copy)]
 struct NnCtx<'a> {
-    a: &'a PackedA,
+    a: AOperand<'a>,
     b: &'a [f32],
     b_rows: &'a [usize],
     max_row: usize,
@@ -510,12 +657,39 @@ fn store_tile(
     }
 }
 
+/// Runs `$body` with `$t` bound to the SIMD reader of `$panel` (packed or in place) for `$kc`
+/// steps: the kernels are generic over the reader, so the body is compiled once for each.
+#[cfg(target_arch = "x86_64")]
+macro_rules! with_tile {
+    ($panel:expr, $kc:expr, |$t:ident| $body:expr) => {
+        match $panel {
+            APanel::Packed(a) => {
+                assert!(a.len() >= $kc * MR, "gemm_nn: A panel");
+                let $t = PackedTile(a.as_ptr());
+                $body
+            }
+            APanel::Offsets { w, rows, cols } => {
+                assert!(cols.len() >= $kc && !rows.is_empty(), "gemm_nn: A panel");
+                // Rows past the panel's (never read) alias its first.
+                let $t = OffsetTile {
+                    base: std::array::from_fn(|r| {
+                        w.as_ptr()
+                            .wrapping_add(rows.get(r).copied().unwrap_or(rows[0]))
+                    }),
+                    col: cols.as_ptr(),
+                };
+                $body
+            }
+        }
+    };
+}
+
 impl NnCtx<'_> {
     /// BLIS loop order inside one block: column panels of NC (packed B in L2), K blocks of KC,
     /// row blocks of MC (A in L2), then NR-wide strips (in L1; pairs of strips with AVX-512)
     /// times MR-high tiles.
     fn block(&self, mut blk: Block<'_>) {
-        let k = self.a.k;
+        let k = self.a.k();
         let width = blk.rows.first().map_or(0, |r| r.len());
         if k == 0 {
             if !self.accumulate {
@@ -599,7 +773,7 @@ impl NnCtx<'_> {
     /// 256 rows a strip reads at once outrunning its 32 KB L1 and its prefetchers.
     #[cfg(target_arch = "x86_64")]
     fn block_direct(&self, mut blk: Block<'_>) {
-        let k = self.a.k;
+        let k = self.a.k();
         let width = blk.rows.first().map_or(0, |r| r.len());
         let nrows = blk.rows.len();
         // Column group per kernel call as in `block` (12 accumulators either way).
@@ -618,50 +792,49 @@ impl NnCtx<'_> {
                 for r0 in (0..nrows).step_by(MR) {
                     let mv = MR.min(nrows - r0);
                     let ap = self.a.panel((blk.i0 + r0) / MR, k0, kc);
-                    assert!(ap.len() >= kc * MR);
                     let out: [*mut f32; MR] = std::array::from_fn(|r| {
                         blk.rows
                             .get_mut(r0 + r)
                             .map_or(std::ptr::null_mut(), |row| row[jc..].as_mut_ptr())
                     });
                     // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; A holds
-                    // `kc * MR` values (asserted); lane `l` of strip q is unmasked only when
+                    // `kc` steps of `mv` rows (asserted by with_tile); lane `l` of strip q is unmasked only when
                     // `jc + q * NR + l < width`, so it reads
                     // `rows[kk] + j0 + jc + q * NR + l < max_row + j0 + width <= b.len()`
                     // (asserted above) and writes inside C row `r0 + r < nrows` (`width`
                     // long), which the kernel touches only for `r < mv`.
-                    unsafe {
+                    with_tile!(ap, kc, |ap| unsafe {
                         let (j, b) = (blk.j0 + jc, self.b);
                         match (mv, group) {
-                            (1, 4) => {
-                                avx512::kernel_nn_direct::<1, 4>(ap, b, rows, j, masks, out, first)
-                            }
-                            (2, 4) => {
-                                avx512::kernel_nn_direct::<2, 4>(ap, b, rows, j, masks, out, first)
-                            }
-                            (3, 4) => {
-                                avx512::kernel_nn_direct::<3, 4>(ap, b, rows, j, masks, out, first)
-                            }
-                            (1, _) => {
-                                avx512::kernel_nn_direct::<1, 2>(ap, b, rows, j, masks, out, first)
-                            }
-                            (2, _) => {
-                                avx512::kernel_nn_direct::<2, 2>(ap, b, rows, j, masks, out, first)
-                            }
-                            (3, _) => {
-                                avx512::kernel_nn_direct::<3, 2>(ap, b, rows, j, masks, out, first)
-                            }
-                            (4, _) => {
-                                avx512::kernel_nn_direct::<4, 2>(ap, b, rows, j, masks, out, first)
-                            }
-                            (5, _) => {
-                                avx512::kernel_nn_direct::<5, 2>(ap, b, rows, j, masks, out, first)
-                            }
-                            _ => {
-                                avx512::kernel_nn_direct::<6, 2>(ap, b, rows, j, masks, out, first)
-                            }
+                            (1, 4) => avx512::kernel_nn_direct::<1, 4, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (2, 4) => avx512::kernel_nn_direct::<2, 4, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (3, 4) => avx512::kernel_nn_direct::<3, 4, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (1, _) => avx512::kernel_nn_direct::<1, 2, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (2, _) => avx512::kernel_nn_direct::<2, 2, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (3, _) => avx512::kernel_nn_direct::<3, 2, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (4, _) => avx512::kernel_nn_direct::<4, 2, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            (5, _) => avx512::kernel_nn_direct::<5, 2, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
+                            _ => avx512::kernel_nn_direct::<6, 2, _>(
+                                ap, b, rows, j, masks, out, first,
+                            ),
                         }
-                    }
+                    });
                 }
             }
         }
@@ -703,23 +876,23 @@ impl NnCtx<'_> {
         }
     }
 
-    /// One MR x NR tile over `kc` steps from a packed A panel and a packed B strip.
-    fn kernel(&self, mv: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
-        assert!(a.len() >= kc * MR && b.len() >= kc * NR);
+    /// One MR x NR tile over `kc` steps from an A panel and a packed B strip.
+    fn kernel(&self, mv: usize, kc: usize, a: APanel<'_>, b: &[f32], out: &mut [f32; MR * NR]) {
+        assert!(b.len() >= kc * NR);
         #[cfg(target_arch = "x86_64")]
         if self.level >= SimdLevel::Avx2 {
-            // SAFETY: the level is at least AVX2 only when the CPU reports AVX2 and FMA; the
-            // assert above covers every read (A: `kc * MR` values, B: `kc * NR` values).
-            unsafe {
+            // SAFETY: the level is at least AVX2 only when the CPU reports AVX2 and FMA;
+            // with_tile checks A's `kc` steps, the assert above B's `kc * NR` values.
+            with_tile!(a, kc, |t| unsafe {
                 match mv {
-                    1 => avx2::kernel_nn::<1>(kc, a, b, out),
-                    2 => avx2::kernel_nn::<2>(kc, a, b, out),
-                    3 => avx2::kernel_nn::<3>(kc, a, b, out),
-                    4 => avx2::kernel_nn::<4>(kc, a, b, out),
-                    5 => avx2::kernel_nn::<5>(kc, a, b, out),
-                    _ => avx2::kernel_nn::<6>(kc, a, b, out),
+                    1 => avx2::kernel_nn::<1, _>(kc, t, b, out),
+                    2 => avx2::kernel_nn::<2, _>(kc, t, b, out),
+                    3 => avx2::kernel_nn::<3, _>(kc, t, b, out),
+                    4 => avx2::kernel_nn::<4, _>(kc, t, b, out),
+                    5 => avx2::kernel_nn::<5, _>(kc, t, b, out),
+                    _ => avx2::kernel_nn::<6, _>(kc, t, b, out),
                 }
-            }
+            });
             return;
         }
         scalar_kernel_nn(mv, kc, a, b, out);
@@ -732,28 +905,28 @@ impl NnCtx<'_> {
         mv: usize,
         g: usize,
         kc: usize,
-        a: &[f32],
+        a: APanel<'_>,
         b: &[f32],
         out: &mut [[f32; MR * NR]; 4],
     ) {
-        assert!(a.len() >= kc * MR && b.len() >= g * kc * NR && (g == 2 || (g == 4 && mv <= 3)));
+        assert!(b.len() >= g * kc * NR && (g == 2 || (g == 4 && mv <= 3)));
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
-            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; the assert above
-            // covers every read (A `kc * MR`, B `g` strips of `kc * NR`).
-            unsafe {
+            // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; with_tile checks
+            // A's `kc` steps, the assert above B's `g` strips of `kc * NR`.
+            with_tile!(a, kc, |t| unsafe {
                 match (mv, g) {
-                    (1, 4) => avx512::kernel_nn_group::<1, 4>(kc, a, b, out),
-                    (2, 4) => avx512::kernel_nn_group::<2, 4>(kc, a, b, out),
-                    (3, 4) => avx512::kernel_nn_group::<3, 4>(kc, a, b, out),
-                    (1, _) => avx512::kernel_nn_group::<1, 2>(kc, a, b, out),
-                    (2, _) => avx512::kernel_nn_group::<2, 2>(kc, a, b, out),
-                    (3, _) => avx512::kernel_nn_group::<3, 2>(kc, a, b, out),
-                    (4, _) => avx512::kernel_nn_group::<4, 2>(kc, a, b, out),
-                    (5, _) => avx512::kernel_nn_group::<5, 2>(kc, a, b, out),
-                    _ => avx512::kernel_nn_group::<6, 2>(kc, a, b, out),
+                    (1, 4) => avx512::kernel_nn_group::<1, 4, _>(kc, t, b, out),
+                    (2, 4) => avx512::kernel_nn_group::<2, 4, _>(kc, t, b, out),
+                    (3, 4) => avx512::kernel_nn_group::<3, 4, _>(kc, t, b, out),
+                    (1, _) => avx512::kernel_nn_group::<1, 2, _>(kc, t, b, out),
+                    (2, _) => avx512::kernel_nn_group::<2, 2, _>(kc, t, b, out),
+                    (3, _) => avx512::kernel_nn_group::<3, 2, _>(kc, t, b, out),
+                    (4, _) => avx512::kernel_nn_group::<4, 2, _>(kc, t, b, out),
+                    (5, _) => avx512::kernel_nn_group::<5, 2, _>(kc, t, b, out),
+                    _ => avx512::kernel_nn_group::<6, 2, _>(kc, t, b, out),
                 }
-            }
+            });
             return;
         }
         let strip = kc * NR;
@@ -764,13 +937,12 @@ impl NnCtx<'_> {
 }
 
 /// Portable micro-kernel of [`gemm_nn`].
-fn scalar_kernel_nn(mv: usize, kc: usize, a: &[f32], b: &[f32], out: &mut [f32; MR * NR]) {
+fn scalar_kernel_nn(mv: usize, kc: usize, a: APanel<'_>, b: &[f32], out: &mut [f32; MR * NR]) {
     let mut acc = [[0.0f32; NR]; MR];
     for k in 0..kc {
         let bk: &[f32; NR] = b[k * NR..k * NR + NR].try_into().expect("NR slice");
-        let ak = &a[k * MR..k * MR + MR];
         for r in 0..mv {
-            let av = ak[r];
+            let av = a.at(r, k);
             for (acc, &bv) in acc[r].iter_mut().zip(bk) {
                 *acc += av * bv;
             }
@@ -1009,7 +1181,7 @@ fn hsum8(l: &[f32; 8]) -> f32 {
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{hsum8, CT, MR, NR, RT};
+    use super::{hsum8, ATile, CT, MR, NR, RT};
     use std::arch::x86_64::*;
 
     /// `pack[(s * kc + kk) * NR..][..NR] = b[rows[kk] + j + s * NR..][..NR]` for `s < full`,
@@ -1032,30 +1204,30 @@ mod avx2 {
         }
     }
 
-    /// `out[r][..] = sum_k a[k * MR + r] * b[k * NR..][..NR]` for `r < R`.
+    /// `out[r][..] = sum_k A(r, k) * b[k * NR..][..NR]` for `r < R`.
     ///
     /// # Safety
-    /// The CPU must support AVX2 and FMA; `a.len() >= kc * MR` and `b.len() >= kc * NR`.
+    /// The CPU must support AVX2 and FMA; `a` must read `kc` steps of `R` rows and
+    /// `b.len() >= kc * NR`.
     #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn kernel_nn<const R: usize>(
+    pub unsafe fn kernel_nn<const R: usize, T: ATile>(
         kc: usize,
-        a: &[f32],
+        mut ap: T,
         b: &[f32],
         out: &mut [f32; MR * NR],
     ) {
         let mut acc = [[_mm256_setzero_ps(); 2]; R];
-        let mut ap = a.as_ptr();
         let mut bp = b.as_ptr();
         for _ in 0..kc {
             // SAFETY: `kc` steps of NR values of B and MR values of A are in bounds by the contract.
             let b0 = _mm256_loadu_ps(bp);
             let b1 = _mm256_loadu_ps(bp.add(8));
             for (r, acc) in acc.iter_mut().enumerate() {
-                let av = _mm256_set1_ps(*ap.add(r));
+                let av = _mm256_set1_ps(ap.get(r));
                 acc[0] = _mm256_fmadd_ps(av, b0, acc[0]);
                 acc[1] = _mm256_fmadd_ps(av, b1, acc[1]);
             }
-            ap = ap.add(MR);
+            ap.advance();
             bp = bp.add(NR);
         }
         let op = out.as_mut_ptr();
@@ -1139,7 +1311,7 @@ mod avx2 {
 // (the workspace's rust-version).
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{CT, MR, NR, RT};
+    use super::{ATile, CT, MR, NR, RT};
     use std::arch::x86_64::*;
 
     /// As `avx2::pack_b`, one 16-float vector per strip row.
@@ -1162,20 +1334,20 @@ mod avx512 {
         }
     }
 
-    /// `G` tiles: `out[q][r][..] = sum_k a[k * MR + r] * b[q * kc * NR + k * NR..][..NR]` for
+    /// `G` tiles: `out[q][r][..] = sum_k A(r, k) * b[q * kc * NR + k * NR..][..NR]` for
     /// `r < R`, `q < G`.
     ///
     /// # Safety
-    /// The CPU must support AVX-512F; `a.len() >= kc * MR`, `b.len() >= G * kc * NR`, `G <= 4`.
+    /// The CPU must support AVX-512F; `a` must read `kc` steps of `R` rows,
+    /// `b.len() >= G * kc * NR`, `G <= 4`.
     #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel_nn_group<const R: usize, const G: usize>(
+    pub unsafe fn kernel_nn_group<const R: usize, const G: usize, T: ATile>(
         kc: usize,
-        a: &[f32],
+        mut ap: T,
         b: &[f32],
         out: &mut [[f32; MR * NR]; 4],
     ) {
         let mut acc = [[_mm512_setzero_ps(); G]; R];
-        let mut ap = a.as_ptr();
         let mut bp = [b.as_ptr(); G];
         for (q, p) in bp.iter_mut().enumerate() {
             *p = b.as_ptr().add(q * kc * NR);
@@ -1188,12 +1360,12 @@ mod avx512 {
                 bp[q] = bp[q].add(NR);
             }
             for (r, acc) in acc.iter_mut().enumerate() {
-                let av = _mm512_set1_ps(*ap.add(r));
+                let av = _mm512_set1_ps(ap.get(r));
                 for q in 0..G {
                     acc[q] = _mm512_fmadd_ps(av, v[q], acc[q]);
                 }
             }
-            ap = ap.add(MR);
+            ap.advance();
         }
         for (r, acc) in acc.iter().enumerate() {
             for q in 0..G {
@@ -1210,13 +1382,13 @@ mod avx512 {
     /// streams for the hardware prefetcher.
     ///
     /// # Safety
-    /// The CPU must support AVX-512F; `a.len() >= rows.len() * MR`, `G <= 4`, every unmasked
-    /// lane is inside `b`, and for `r < R` every unmasked lane of `c[r]` is writable and
-    /// aliases nothing else in use.
+    /// The CPU must support AVX-512F; `a` must read `rows.len()` steps of `R` rows, `G <= 4`,
+    /// every unmasked lane is inside `b`, and for `r < R` every unmasked lane of `c[r]` is
+    /// writable and aliases nothing else in use.
     #[allow(clippy::too_many_arguments)]
     #[target_feature(enable = "avx512f")]
-    pub unsafe fn kernel_nn_direct<const R: usize, const G: usize>(
-        a: &[f32],
+    pub unsafe fn kernel_nn_direct<const R: usize, const G: usize, T: ATile>(
+        mut ap: T,
         b: &[f32],
         rows: &[usize],
         j: usize,
@@ -1225,7 +1397,6 @@ mod avx512 {
         first: bool,
     ) {
         let mut acc = [[_mm512_setzero_ps(); G]; R];
-        let mut ap = a.as_ptr();
         let base = b.as_ptr().wrapping_add(j);
         for &row in rows {
             let p = base.wrapping_add(row);
@@ -1236,12 +1407,12 @@ mod avx512 {
                 _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add((G + q) * NR) as *const i8);
             }
             for (r, acc) in acc.iter_mut().enumerate() {
-                let av = _mm512_set1_ps(*ap.add(r));
+                let av = _mm512_set1_ps(ap.get(r));
                 for q in 0..G {
                     acc[q] = _mm512_fmadd_ps(av, v[q], acc[q]);
                 }
             }
-            ap = ap.add(MR);
+            ap.advance();
         }
         for (r, acc) in acc.iter().enumerate() {
             for q in 0..G {
