@@ -32,6 +32,7 @@ use super::adam::{SparseAdam, SparseAdamRows};
 use dnr_runtime::nn::gemm::SimdLevel;
 use dnr_runtime::nn::simd::prefetch;
 use dnr_runtime::nn::simd::widest_up_to;
+use dnr_runtime::nn::tensor::pool;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
 pub fn sample_forward(pyr: &Pyramid, gbuf: &GBuffer, out: &mut [f32]) -> Result<(), TextureError> {
@@ -129,6 +130,7 @@ pub fn sample_backward(
             .collect();
         touched.push(lists.concat());
     }
+    pool::recycle(d_act);
     Ok(touched)
 }
 
@@ -261,6 +263,7 @@ pub fn sample_backward_adam(
             );
         })
     });
+    pool::recycle(d_act);
     Ok(())
 }
 
@@ -514,10 +517,11 @@ impl ViewTaps {
     }
 
     /// The upstream gradient `[C, H, W]` at the active pixels, transposed to `[P, C]` (each
-    /// tap of the scatter reads C contiguous values).
+    /// tap of the scatter reads C contiguous values). From the tensor pool (every value is
+    /// written): a fresh zeroed buffer each step cost a memset and its page faults.
     fn gather_rows(&self, d_out: &[f32]) -> Vec<f32> {
         let (c, n) = (self.channels, self.pixels);
-        let mut d_act = vec![0.0f32; self.active.len() * c];
+        let mut d_act = pool::scratch(self.active.len() * c);
         d_act
             .par_chunks_mut(c * PIXEL_CHUNK)
             .zip(self.active.par_chunks(PIXEL_CHUNK))
