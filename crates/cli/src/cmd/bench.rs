@@ -38,6 +38,12 @@ enum What {
         /// Write the measurements as JSON.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// With --torch, also time the CPU-sized U-Net's step at 128 and 256 this many times
+        /// alternately, ours then PyTorch's, and report each pair's ratio and their median: on
+        /// a shared host the load drifts over the minutes between the main table's rows, and
+        /// pairs taken seconds apart see it alike.
+        #[arg(long, default_value_t = 0)]
+        pairs: usize,
     },
     /// Held-out PSNR against bake seconds for presets and baselines: one bake per
     /// configuration with the largest budget, evaluated along the way; writes a JSON table
@@ -98,7 +104,8 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             torch,
             peer,
             json,
-        } => train(*reps, torch.as_ref(), peer, json.as_ref()),
+            pairs,
+        } => train(*reps, torch.as_ref(), peer, json.as_ref(), *pairs),
         What::Render {
             asset,
             sizes,
@@ -140,12 +147,113 @@ pub fn run(args: &Args) -> Result<ExitCode> {
     }
 }
 
+/// Runs the PyTorch reference's `bench` with `args` (and our thread count) and returns its
+/// JSON report.
+fn run_peer(
+    py: &PathBuf,
+    peer: &PathBuf,
+    args: &[&str],
+    threads: usize,
+) -> Result<serde_json::Value> {
+    let tmp = std::env::temp_dir().join(format!("dnr-torch-bench-{}.json", std::process::id()));
+    let status = Command::new(py)
+        .arg(peer)
+        .arg("bench")
+        .args(args)
+        .args(["--threads", &threads.to_string()])
+        .arg("--json")
+        .arg(&tmp)
+        .stdout(std::process::Stdio::null())
+        .status()
+        .with_context(|| format!("running {} {}", py.display(), peer.display()))?;
+    if !status.success() {
+        bail!("{}: PyTorch benchmark failed ({status})", peer.display());
+    }
+    let text = std::fs::read_to_string(&tmp).with_context(|| tmp.display().to_string())?;
+    let _ = std::fs::remove_file(&tmp);
+    serde_json::from_str(&text).context("PyTorch benchmark JSON")
+}
+
+/// The PyTorch report's training-step row at `size` as (min, median) ms.
+fn peer_step(t: &serde_json::Value, size: usize) -> Option<(f64, f64)> {
+    t["runs"]
+        .as_array()?
+        .iter()
+        .find(|r| r["kind"] == "train_step" && r["size"].as_u64() == Some(size as u64))
+        .and_then(|r| Some((r["min_ms"].as_f64()?, r["median_ms"].as_f64()?)))
+}
+
+/// `--pairs`: the CPU-sized step at 128 and 256, ours then PyTorch's, `pairs` times; prints
+/// each pair and the median ratio per size, returns them as JSON.
+fn paired(
+    py: &PathBuf,
+    peer: &PathBuf,
+    reps: usize,
+    threads: usize,
+    pairs: usize,
+) -> Result<serde_json::Value> {
+    let widths: Vec<u32> = dnr_bake::bench::CPU_WIDTHS
+        .iter()
+        .map(|&w| w as u32)
+        .collect();
+    println!("Pairs (CPU-sized step, ours then PyTorch's, seconds apart):");
+    println!("| pair | size | dnr ms (min / median) | PyTorch ms (min / median) | speed-up (min / median) |");
+    println!("| ---: | ---: | ---: | ---: | ---: |");
+    let mut rows = Vec::new();
+    let mut ratios: Vec<(usize, f64, f64)> = Vec::new();
+    for p in 0..pairs {
+        for size in [128usize, 256] {
+            let (d_min, d_med, _) = dnr_bake::bench::step::bench_trainer_step(&widths, size, reps);
+            let s = size.to_string();
+            // The peer always times an inference row too: the smallest size keeps it short.
+            let args = [
+                "--widths",
+                "0.25",
+                "--train-sizes",
+                &s,
+                "--infer-sizes",
+                "64",
+            ];
+            let t = run_peer(py, peer, &args, threads)?;
+            let (t_min, t_med) = peer_step(&t, size).context("PyTorch report has no step row")?;
+            let (r_min, r_med) = (t_min / d_min, t_med / d_med);
+            println!(
+                "| {p} | {size} | {d_min:.1} / {d_med:.1} | {t_min:.1} / {t_med:.1} | {r_min:.2}x / {r_med:.2}x |"
+            );
+            rows.push(
+                serde_json::json!({"pair": p, "size": size, "dnrMsMin": d_min,
+                "dnrMsMedian": d_med, "torchMsMin": t_min, "torchMsMedian": t_med,
+                "speedupMin": r_min, "speedup": r_med}),
+            );
+            ratios.push((size, r_min, r_med));
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let mut summary = Vec::new();
+    for size in [128usize, 256] {
+        let of = |f: fn(&(usize, f64, f64)) -> f64| {
+            median(ratios.iter().filter(|r| r.0 == size).map(f).collect())
+        };
+        let (m_min, m_med) = (of(|r| r.1), of(|r| r.2));
+        println!("Median over {pairs} pairs at {size}: {m_min:.2}x (min) / {m_med:.2}x (median)");
+        summary.push(serde_json::json!({"size": size, "speedupMin": m_min, "speedup": m_med}));
+    }
+    Ok(serde_json::json!({"rows": rows, "medians": summary}))
+}
+
 fn train(
     reps: usize,
     torch: Option<&PathBuf>,
     peer: &PathBuf,
     json: Option<&PathBuf>,
+    pairs: usize,
 ) -> Result<ExitCode> {
+    if pairs > 0 && torch.is_none() {
+        bail!("--pairs needs --torch (the Python to time PyTorch with)");
+    }
     let report = dnr_bake::bench::run_standard(reps);
     println!("{report}");
     let mut out = serde_json::json!({
@@ -164,36 +272,18 @@ fn train(
         })).collect::<Vec<_>>(),
     });
     if let Some(py) = torch {
-        let tmp = std::env::temp_dir().join(format!("dnr-torch-bench-{}.json", std::process::id()));
-        let status = Command::new(py)
-            .arg(peer)
-            .args([
-                "bench",
-                "--widths",
-                "0.25",
-                "1.0",
-                "--train-sizes",
-                "128",
-                "256",
-            ])
-            .args([
-                "--infer-sizes",
-                "256",
-                "512",
-                "--threads",
-                &report.threads.to_string(),
-            ])
-            .arg("--json")
-            .arg(&tmp)
-            .stdout(std::process::Stdio::null())
-            .status()
-            .with_context(|| format!("running {} {}", py.display(), peer.display()))?;
-        if !status.success() {
-            bail!("{}: PyTorch benchmark failed ({status})", peer.display());
-        }
-        let text = std::fs::read_to_string(&tmp).with_context(|| tmp.display().to_string())?;
-        let _ = std::fs::remove_file(&tmp);
-        let t: serde_json::Value = serde_json::from_str(&text).context("PyTorch benchmark JSON")?;
+        let args = [
+            "--widths",
+            "0.25",
+            "1.0",
+            "--train-sizes",
+            "128",
+            "256",
+            "--infer-sizes",
+            "256",
+            "512",
+        ];
+        let t = run_peer(py, peer, &args, report.threads)?;
         println!(
             "PyTorch {} (same run, {} threads):",
             t["torch"], t["threads"]
@@ -239,6 +329,9 @@ fn train(
             }
         }
         out["torch"] = serde_json::json!({"version": t["torch"], "comparisons": cmp});
+        if pairs > 0 {
+            out["torch"]["pairs"] = paired(py, peer, reps, report.threads, pairs)?;
+        }
     }
     if let Some(p) = json {
         std::fs::write(p, serde_json::to_string_pretty(&out)?)
