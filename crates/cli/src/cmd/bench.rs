@@ -205,7 +205,8 @@ fn paired(
         for size in [128usize, 256] {
             let (d_min, d_med, _) = dnr_bake::bench::step::bench_trainer_step(&widths, size, reps);
             let s = size.to_string();
-            // The peer always times an inference row too: the smallest size keeps it short.
+            // The peer always times an inference row too: 64 keeps it short (16 fails there: the
+            // CPU-sized U-Net's bottom level would be 1x1, which instance norm rejects).
             let args = [
                 "--widths",
                 "0.25",

@@ -411,8 +411,9 @@ struct OffsetTile {
 impl ATile for OffsetTile {
     #[inline(always)]
     unsafe fn get(&self, r: usize) -> f32 {
-        // SAFETY: the caller's promise: row r exists and `*col` is one of the panel's column
-        // offsets, and every `rows[r] + cols[k]` is inside `w` (checked by AOperand::offsets).
+        // SAFETY: the caller's promise: `*col` is one of the panel's column offsets; every
+        // base is `w` plus one of the panel's row offsets (rows past the panel's alias its
+        // first), and every `rows[i] + cols[k]` is inside `w` (checked by AOperand::offsets).
         unsafe { *self.base[r].add(*self.col) }
     }
     #[inline(always)]
@@ -798,8 +799,8 @@ impl NnCtx<'_> {
                             .map_or(std::ptr::null_mut(), |row| row[jc..].as_mut_ptr())
                     });
                     // SAFETY: the level is AVX-512 only when the CPU reports AVX-512F; A holds
-                    // `kc` steps of `mv` rows (asserted by with_tile); lane `l` of strip q is unmasked only when
-                    // `jc + q * NR + l < width`, so it reads
+                    // `kc` steps of its rows (asserted by with_tile); lane `l` of strip q is
+                    // unmasked only when `jc + q * NR + l < width`, so it reads
                     // `rows[kk] + j0 + jc + q * NR + l < max_row + j0 + width <= b.len()`
                     // (asserted above) and writes inside C row `r0 + r < nrows` (`width`
                     // long), which the kernel touches only for `r < mv`.
