@@ -341,6 +341,67 @@ fn fused_scatter_and_adam_equal_the_separate_passes_bit_for_bit() {
 }
 
 #[test]
+fn forward_taps_equal_the_sampler_inside_at_edges_and_outside() {
+    // The training forward computes the taps of runs of pixels side by side when all of them
+    // fall inside a level and through the runtime's `taps` otherwise: the features and the
+    // scatter built on those taps must be the sampler's and the serial oracle's, bit for bit,
+    // for uv well inside [0, 1] (vector runs), next to the edges (runs that fall back) and
+    // outside, in every wrap mode, on the SIMD and the baseline path.
+    let mut rng = ChaCha8Rng::seed_from_u64(29);
+    let (w, h) = (67, 45);
+    for (ws, wt) in [
+        (Wrap::Repeat, Wrap::Repeat),
+        (Wrap::ClampToEdge, Wrap::MirroredRepeat),
+        (Wrap::MirroredRepeat, Wrap::ClampToEdge),
+    ] {
+        let pyr = pyramid(&mut rng, 16, &[(53, 37), (27, 19), (3, 2), (1, 1)], ws, wt);
+        let mut g = gbuffer(&mut rng, w, h);
+        for i in 0..w * h {
+            let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+            g.uv[i] = match (i / w) % 3 {
+                // Smooth rows inside, as a rasterised chart gives.
+                0 | 1 => [0.05 + 0.9 * x, 0.05 + 0.9 * y],
+                // Rows that run up to and across the edges.
+                _ => [x * 1.04 - 0.02, 1.01 - y * 1.02],
+            };
+        }
+        let up = random_vec(&mut rng, 16 * w * h);
+        for scalar in [false, true] {
+            set_force_scalar(scalar);
+            let mut out = vec![0.0; 16 * w * h];
+            let taps = sample_forward_taps(&pyr, &g, &mut out).unwrap();
+            let mut plain = vec![0.0; 16 * w * h];
+            sample_forward(&pyr, &g, &mut plain).unwrap();
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+            assert_eq!(bits(&out), bits(&plain), "{ws:?}/{wt:?}, scalar {scalar}");
+            // The kept taps drive the fused scatter; one Adam step from zero moments moves
+            // each touched value by about lr, so compare against the separate passes.
+            let cfg = AdamConfig::default();
+            let mut fused = pyr.clone();
+            let mut opts: Vec<SparseAdam> = pyr
+                .levels
+                .iter()
+                .map(|l| SparseAdam::new(l.width * l.height, 16, cfg))
+                .collect();
+            let decay = vec![0.0; pyr.levels.len()];
+            sample_backward_adam(&taps, &mut fused, &up, &mut opts, &decay).unwrap();
+            let mut sep = pyr.clone();
+            let mut grads: Vec<Vec<f32>> =
+                pyr.levels.iter().map(|l| vec![0.0; l.data.len()]).collect();
+            let touched = sample_backward_serial(&pyr, &g, &up, &mut grads).unwrap();
+            for (k, l) in sep.levels.iter_mut().enumerate() {
+                let mut o = SparseAdam::new(l.width * l.height, 16, cfg);
+                o.step(&mut l.data, &mut grads[k], &touched[k], 0.0);
+            }
+            for (a, b) in fused.levels.iter().zip(&sep.levels) {
+                assert_eq!(bits(&a.data), bits(&b.data), "{ws:?}/{wt:?} scatter");
+            }
+        }
+        set_force_scalar(false);
+    }
+}
+
+#[test]
 fn sample_backward_rejects_mismatched_shapes() {
     let mut rng = ChaCha8Rng::seed_from_u64(14);
     let pyr = pyramid(&mut rng, 3, &[(7, 5), (4, 3)], Wrap::Repeat, Wrap::Repeat);

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 use super::adam::{SparseAdam, SparseAdamRows};
 use dnr_runtime::nn::gemm::SimdLevel;
 use dnr_runtime::nn::simd::prefetch;
-use dnr_runtime::nn::simd::widest_up_to;
+use dnr_runtime::nn::simd::{widest, widest_up_to};
 use dnr_runtime::nn::tensor::pool;
 
 /// Forward: the runtime's sampler (`out` is `[C, H, W]`, zero at uncovered pixels).
@@ -378,6 +378,7 @@ impl ChunkTaps {
     }
 
     /// Counting sort of the chunk's pixels by band (stable: pixel order kept).
+    #[inline(always)]
     fn new(taps: Vec<Tap4>, shift: u32, bands: usize) -> Self {
         let mut start = vec![0u32; bands + 1];
         for t in &taps {
@@ -470,15 +471,23 @@ impl ViewTaps {
             })
             .collect();
         let (ws, wt) = (pyr.wrap_s, pyr.wrap_t);
+        // Compiled for the widest instruction set: the taps' f64 arithmetic runs in vector
+        // lanes (and `floor` is one instruction), each texel's blend is one or two vectors.
         let chunk = |px: &[u32], mut acc: Option<&mut [f32]>| -> Vec<ChunkTaps> {
-            pyr.levels
-                .iter()
-                .zip(&shifts)
-                .map(|(l, &shift)| {
-                    let taps = level_taps(l, c, ws, wt, &gbuf.uv, px, acc.as_deref_mut());
-                    ChunkTaps::new(taps, shift, (l.width * l.height).div_ceil(1 << shift))
-                })
-                .collect()
+            widest(
+                #[inline(always)]
+                || {
+                    // A loop, not an iterator chain: closures inside adapters are not always
+                    // inlined, and outside this function they lose its instruction set.
+                    let mut out = Vec::with_capacity(shifts.len());
+                    for (l, &shift) in pyr.levels.iter().zip(&shifts) {
+                        let taps = level_taps(l, c, ws, wt, &gbuf.uv, px, acc.as_deref_mut());
+                        let bands = (l.width * l.height).div_ceil(1 << shift);
+                        out.push(ChunkTaps::new(taps, shift, bands));
+                    }
+                    out
+                },
+            )
         };
         // [chunk][level]
         let mut per_chunk: Vec<Vec<ChunkTaps>> = match f_act {
@@ -543,6 +552,7 @@ impl ViewTaps {
 
 /// The taps of the pixels `px` on `level`; with `acc` (`[px][C]`) also adds each pixel's
 /// bilinear sample into it, tap by tap.
+#[inline(always)]
 fn level_taps(
     level: &Level,
     c: usize,
@@ -553,13 +563,7 @@ fn level_taps(
     acc: Option<&mut [f32]>,
 ) -> Vec<Tap4> {
     match (acc, c) {
-        (None, _) => px
-            .iter()
-            .map(|&p| {
-                let [u, v] = uv[p as usize];
-                tap4(taps(level.width, level.height, ws, wt, u, v))
-            })
-            .collect(),
+        (None, _) => level_tap_list(level, ws, wt, uv, px),
         (Some(acc), 16) => level_taps_n::<16>(level, ws, wt, uv, px, acc),
         (Some(acc), 12) => level_taps_n::<12>(level, ws, wt, uv, px, acc),
         (Some(acc), 8) => level_taps_n::<8>(level, ws, wt, uv, px, acc),
@@ -585,7 +589,7 @@ fn level_taps(
 /// stays in registers across the taps). The taps of the whole chunk come first, so the blend
 /// can prefetch the texels of the pixel [`PREFETCH_AHEAD`] places on: the finest levels are
 /// far larger than the caches and each pixel's four texels are scattered lines.
-#[inline]
+#[inline(always)]
 fn level_taps_n<const C: usize>(
     level: &Level,
     ws: Wrap,
@@ -594,13 +598,7 @@ fn level_taps_n<const C: usize>(
     px: &[u32],
     acc: &mut [f32],
 ) -> Vec<Tap4> {
-    let all: Vec<Tap4> = px
-        .iter()
-        .map(|&p| {
-            let [u, v] = uv[p as usize];
-            tap4(taps(level.width, level.height, ws, wt, u, v))
-        })
-        .collect();
+    let all = level_tap_list(level, ws, wt, uv, px);
     for (i, (t, a)) in all.iter().zip(acc.chunks_exact_mut(C)).enumerate() {
         if let Some(next) = all.get(i + PREFETCH_AHEAD) {
             for &tx in &next.texel {
@@ -627,6 +625,59 @@ fn level_taps_n<const C: usize>(
         *a = s;
     }
     all
+}
+
+/// Pixels whose taps [`level_tap_list`] computes side by side.
+const TAP_LANES: usize = 8;
+
+/// The taps of the pixels `px` (finite uv) on `level`, each exactly what [`taps`] gives it:
+/// [`TAP_LANES`] pixels at a time where all of their taps fall inside the level (every wrap
+/// mode then yields `floor(x)` and `floor(x) + 1`, and `floor(x)` equals the integer `taps`
+/// derives), through [`taps`] itself otherwise. The same f64 and f32 operations in the same
+/// order, so the same bits.
+#[inline(always)]
+fn level_tap_list(level: &Level, ws: Wrap, wt: Wrap, uv: &[[f32; 2]], px: &[u32]) -> Vec<Tap4> {
+    let (w, h) = (level.width, level.height);
+    let (wf, hf) = (w as f64, h as f64);
+    let one = |p: u32| {
+        let [u, v] = uv[p as usize];
+        tap4(taps(w, h, ws, wt, u, v))
+    };
+    let mut out = Vec::with_capacity(px.len());
+    let mut blocks = px.chunks_exact(TAP_LANES);
+    for blk in blocks.by_ref() {
+        let (mut x, mut y) = ([0.0f64; TAP_LANES], [0.0f64; TAP_LANES]);
+        for i in 0..TAP_LANES {
+            let [u, v] = uv[blk[i] as usize];
+            x[i] = u as f64 * wf - 0.5;
+            y[i] = v as f64 * hf - 0.5;
+        }
+        let (x0, y0) = (x.map(f64::floor), y.map(f64::floor));
+        let mut inside = true;
+        for i in 0..TAP_LANES {
+            inside &= x0[i] >= 0.0 && x0[i] + 1.0 < wf && y0[i] >= 0.0 && y0[i] + 1.0 < hf;
+        }
+        if !inside {
+            out.extend(blk.iter().map(|&p| one(p)));
+            continue;
+        }
+        for i in 0..TAP_LANES {
+            let (fx, fy) = ((x[i] - x0[i]) as f32, (y[i] - y0[i]) as f32);
+            let t = (y0[i] as usize * w + x0[i] as usize) as u32;
+            let w32 = w as u32;
+            out.push(Tap4 {
+                texel: [t, t + 1, t + w32, t + w32 + 1],
+                weight: [
+                    (1.0 - fx) * (1.0 - fy),
+                    fx * (1.0 - fy),
+                    (1.0 - fx) * fy,
+                    fx * fy,
+                ],
+            });
+        }
+    }
+    out.extend(blocks.remainder().iter().map(|&p| one(p)));
+    out
 }
 
 /// Pixels ahead whose texels [`level_taps_n`] prefetches.
