@@ -680,6 +680,9 @@ fn level_tap_list(level: &Level, ws: Wrap, wt: Wrap, uv: &[[f32; 2]], px: &[u32]
     out
 }
 
+/// Pixels ahead in a band's list whose taps and gradient row [`Gather::each_tap`] prefetches.
+const GATHER_AHEAD: usize = 8;
+
 /// Pixels ahead whose texels [`level_taps_n`] prefetches.
 const PREFETCH_AHEAD: usize = 8;
 
@@ -757,8 +760,16 @@ impl Gather<'_> {
         let lt = &self.vt.levels[k];
         let lo = (b << lt.shift) as u32;
         let len = hit.len() as u32;
+        let c = self.vt.channels;
         for (ci, chunk) in lt.chunks.iter().enumerate() {
-            for &i in chunk.band(b) {
+            let list = chunk.band(b);
+            for (j, &i) in list.iter().enumerate() {
+                // The band's pixels skip through the chunk: fetch the taps and the gradient
+                // row of a pixel a few places on.
+                if let Some(&ia) = list.get(j + GATHER_AHEAD) {
+                    prefetch(&chunk.taps, ia as usize);
+                    prefetch(self.d_act, (ci * PIXEL_CHUNK + ia as usize) * c);
+                }
                 let t = &chunk.taps[i as usize];
                 let p = ci * PIXEL_CHUNK + i as usize;
                 for (&tx, &w) in t.texel.iter().zip(&t.weight) {
