@@ -638,7 +638,7 @@ const TAP_LANES: usize = 8;
 #[inline(always)]
 fn level_tap_list(level: &Level, ws: Wrap, wt: Wrap, uv: &[[f32; 2]], px: &[u32]) -> Vec<Tap4> {
     let (w, h) = (level.width, level.height);
-    let (wf, hf) = (w as f64, h as f64);
+    let (wf, hf, w32) = (w as f64, h as f64, w as u32);
     let one = |p: u32| {
         let [u, v] = uv[p as usize];
         tap4(taps(w, h, ws, wt, u, v))
@@ -664,7 +664,6 @@ fn level_tap_list(level: &Level, ws: Wrap, wt: Wrap, uv: &[[f32; 2]], px: &[u32]
         for i in 0..TAP_LANES {
             let (fx, fy) = ((x[i] - x0[i]) as f32, (y[i] - y0[i]) as f32);
             let t = (y0[i] as usize * w + x0[i] as usize) as u32;
-            let w32 = w as u32;
             out.push(Tap4 {
                 texel: [t, t + 1, t + w32, t + w32 + 1],
                 weight: [
