@@ -9,5 +9,7 @@ pub mod bench;
 pub mod capture;
 pub mod eval;
 pub mod export;
+pub mod fixed;
 pub mod kernels;
+pub mod pipeline;
 pub mod train;

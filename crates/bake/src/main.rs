@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use dnr_bake::bake::{bake, BakeOptions};
 use dnr_bake::train::config::{Arch, Preset, TrainConfig, MLP_DEFAULT_WIDTHS};
+use dnr_bake::train::schedule::{Schedule, Shape};
 
 /// Large buffers (texture levels, optimiser moments, feature planes) on cache-line
 /// boundaries: see `dnr_runtime::alloc`.
@@ -67,9 +68,29 @@ struct Args {
     /// Maximum optimisation steps.
     #[arg(long)]
     steps: Option<u64>,
-    /// Adam learning rate (texture and network).
+    /// Adam learning rate (texture and network; --lr-net / --lr-tex set one).
     #[arg(long)]
     lr: Option<f32>,
+    /// Adam learning rate of the network.
+    #[arg(long)]
+    lr_net: Option<f32>,
+    /// Adam learning rate of the neural texture.
+    #[arg(long)]
+    lr_tex: Option<f32>,
+    /// Learning-rate schedule over the whole --time-budget (or --steps): cosine (default:
+    /// a short linear warm-up, then half a cosine down to --lr-floor), linear, or constant
+    /// (the paper's; the default of --preset paper).
+    #[arg(long)]
+    schedule: Option<Shape>,
+    /// Fraction of the run the schedule warms up over.
+    #[arg(long)]
+    warmup: Option<f64>,
+    /// Learning-rate factor the schedule ends at.
+    #[arg(long)]
+    lr_floor: Option<f64>,
+    /// Texture L2 regularisation: level k of K (0 = finest) gets REG * (K-1-k).
+    #[arg(long)]
+    reg: Option<f32>,
     /// Random seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -163,6 +184,27 @@ fn config(a: &Args) -> TrainConfig {
         c.lr_net = v;
         c.lr_tex = v;
     }
+    if let Some(v) = a.lr_net {
+        c.lr_net = v;
+    }
+    if let Some(v) = a.lr_tex {
+        c.lr_tex = v;
+    }
+    if let Some(v) = a.schedule {
+        c.schedule.shape = v;
+        if v == Shape::Constant {
+            c.schedule = Schedule::CONSTANT;
+        }
+    }
+    if let Some(v) = a.warmup {
+        c.schedule.warmup = v;
+    }
+    if let Some(v) = a.lr_floor {
+        c.schedule.floor = v;
+    }
+    if let Some(v) = a.reg {
+        c.reg = v;
+    }
     if let Some(v) = a.seed {
         c.seed = v;
     }
@@ -187,6 +229,9 @@ fn run(a: Args) -> Result<()> {
         anyhow::bail!("--write-unpruned needs --preset auto");
     }
     let cfg = config(&a);
+    cfg.schedule
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--warmup/--lr-floor: {e}"))?;
     let mut limits = dnr_bake::capture::Limits::default();
     for spec in &a.limits {
         limits

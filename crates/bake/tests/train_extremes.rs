@@ -45,7 +45,7 @@ fn mean_psnr(t: &mut Trainer, test: &[View]) -> f64 {
 }
 
 fn run_plain(t: &mut Trainer, state: &mut RunState, train: &[View]) -> Result<(), TrainError> {
-    run(t, state, train, &[], None, |_, _| {}, |_| {})
+    run(t, state, 1.0, train, &[], &[], None, |_, _| {}, |_| {})
 }
 
 #[test]

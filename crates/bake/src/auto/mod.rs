@@ -1,100 +1,52 @@
-//! `--preset auto`: measure the scene and the machine, decide what the asset needs, train it,
-//! prune what costs less than [`PRUNE_DB`] on validation views, fine-tune, export. Every
-//! decision lands in the bake report with what it measured and what it saved.
+//! `--preset auto`: measure the scene and the machine, decide what the asset needs, train it
+//! under one learning-rate schedule over the whole budget, prune what costs less than
+//! [`PRUNE_DB`] on validation views, export. Every decision lands in the bake report with
+//! what it measured and what it saved.
 //!
-//! Within the budget `B` (seconds counted like every bake's: initialisation, analysis and
-//! pruning included, the periodic held-out evaluations excluded):
-//! 1. Validation views: every 20th training view (at most 5) is held out of training until
-//!    the decisions are made, so they are judged on views the model did not fit; the
-//!    capture's test views stay untouched for the reported error.
-//! 2. View dependence ([`view_dependence`]): the SH layer is kept only when the training
-//!    images show colour that follows the view direction.
-//! 3. Network and texture size: the largest rung of [`RUNGS`] whose step, timed here on this
-//!    capture, allows at least [`MIN_STEPS`] steps before pruning. (A measured rate against a
-//!    stated floor: the larger rung overtakes the smaller only after about that many steps.)
-//! 4. Texels no training pixel touches are zero from the start and never updated.
-//! 5. Train to `PRUNE_AT * B`; texture only if the network buys less than [`PRUNE_DB`] over
-//!    the classical texture on the validation views.
-//! 6. Prune levels and channels ([`prune`]), put the validation views back into training and
-//!    fine-tune to `B` at [`FINE_TUNE_LR`] times the learning rates.
+//! [`bake`] reads top to bottom as its phases, each a function of this module (or of the
+//! submodule that holds its measurement) whose figures go in the report. Within the budget
+//! `B` (seconds counted like every bake's: initialisation, analysis, validation and pruning
+//! included, the test-view records excluded):
+//! 1. Validation views: the pipeline holds every 20th training view (at most 5) out of
+//!    training; they decide, and the capture's test views stay untouched for the reported
+//!    error.
+//! 2. [`decide_view_dependence`]: the SH layer is kept only when the training images show
+//!    colour that follows the view direction ([`view_dependence`]).
+//! 3. [`decide_size`]: the largest rung of [`size::RUNGS`] whose step, timed here on this
+//!    capture, allows at least [`size::MIN_STEPS`] steps; its finest texture level no finer
+//!    than the training pixels resolve ([`footprint`]).
+//! 4. [`decide_untouched`]: texels no training pixel touches are zero and never updated.
+//! 5. [`train_phase`] to `PRUNE_AT` of the budget, then [`decide_renderer_and_prune`]:
+//!    texture only if the network buys less than [`PRUNE_DB`] over the classical texture on
+//!    the validation views, else levels and channels that cost less than that are removed
+//!    ([`prune`]).
+//! 6. [`train_phase`] to the end of the budget; the schedule anneals the learning rates to
+//!    its floor, and the best validated state is what gets written.
 
+pub mod footprint;
 pub mod prune;
+pub mod size;
 pub mod view_dependence;
 
-use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use dnr_runtime::texture::{taps, Pyramid};
 use serde::Serialize;
 
-use crate::bake::{self, BakeError, BakeOptions, ExportParts, Loaded, Outcome, Progress, Summary};
 use crate::export::ExportNet;
-use crate::train::config::{Arch, TrainConfig, AUTO_DEFAULT_BUDGET};
+use crate::pipeline::{
+    self, BakeError, BakeOptions, ExportParts, Loaded, Outcome, Progress, Summary,
+};
+use crate::train::config::{TrainConfig, AUTO_DEFAULT_BUDGET};
 use crate::train::views::View;
 use crate::train::{self, RunState, TrainError, Trainer};
 
 /// Validation PSNR (dB) a removal may cost and still be made; also the least a network must
 /// buy over the classical texture to be kept.
 pub const PRUNE_DB: f64 = 0.05;
-/// Fraction of the budget trained before pruning (the rest fine-tunes the pruned model).
-pub const PRUNE_AT: f64 = 0.85;
-/// Learning-rate factor of the fine-tuning phase.
-pub const FINE_TUNE_LR: f32 = 0.3;
-/// Steps a rung must be able to take before pruning to be chosen.
-pub const MIN_STEPS: f64 = 2000.0;
-
-/// Steps before timing a rung (pool and cache warm-up), and steps timed.
-const WARM_STEPS: usize = 2;
-const TIMED_STEPS: usize = 5;
-
-/// A size auto may choose: texture resolution, levels, U-Net widths.
-#[derive(Clone, Copy, Debug)]
-pub struct Rung {
-    /// Name (the preset it matches).
-    pub name: &'static str,
-    /// Finest texture side.
-    pub resolution: u32,
-    /// Pyramid levels.
-    pub levels: u32,
-    /// U-Net widths.
-    pub widths: &'static [u32],
-}
-
-/// Largest first; the last is taken when none is fast enough.
-pub const RUNGS: [Rung; 2] = [
-    Rung {
-        name: "balanced",
-        resolution: 512,
-        levels: 4,
-        widths: &[16, 32, 64, 128, 128],
-    },
-    Rung {
-        name: "fast",
-        resolution: 256,
-        levels: 3,
-        widths: &[8, 16, 32, 64],
-    },
-];
-
-/// One rung as measured.
-#[derive(Clone, Debug, Serialize)]
-#[serde(rename_all = "camelCase")]
-pub struct RungTrial {
-    /// The rung's name.
-    pub name: String,
-    /// Finest texture side.
-    pub resolution: u32,
-    /// Levels.
-    pub levels: u32,
-    /// U-Net widths.
-    pub widths: Vec<u32>,
-    /// Measured training step (ms, mean of 5 after 2 warm-up steps).
-    pub step_ms: f64,
-    /// Steps that fit before pruning at that rate.
-    pub steps_before_pruning: f64,
-    /// Chosen.
-    pub chosen: bool,
-}
+/// Fraction of the budget trained before pruning (the rest trains the pruned model on, as
+/// the schedule anneals).
+pub const PRUNE_AT: f64 = 0.7;
 
 /// One decision with what it measured and what it saved.
 #[derive(Clone, Debug, Serialize)]
@@ -116,18 +68,33 @@ pub struct Decision {
     pub why: String,
 }
 
+impl Decision {
+    /// A decision that saved nothing measurable by itself.
+    fn plain(what: &str, choice: String, why: String) -> Decision {
+        Decision {
+            what: what.into(),
+            choice,
+            cost_db: None,
+            bytes_saved: None,
+            ms_saved: None,
+            seconds_saved: None,
+            why,
+        }
+    }
+}
+
 /// Seconds by phase.
 #[derive(Clone, Debug, Default, Serialize)]
 #[serde(rename_all = "camelCase")]
 pub struct Phases {
-    /// Split, view-dependence test, rung timing, initialisation.
+    /// View-dependence test, footprints, rung timing, initialisation.
     pub analysis: f64,
     /// Training up to pruning.
     pub train: f64,
     /// Pruning trials.
     pub prune: f64,
-    /// Fine-tuning after pruning.
-    pub fine_tune: f64,
+    /// Training after pruning.
+    pub train_after_pruning: f64,
 }
 
 /// What auto measured and decided (the bake report's `auto`).
@@ -138,10 +105,14 @@ pub struct AutoReport {
     pub budget: f64,
     /// Training views held out for the decisions.
     pub validation_views: Vec<String>,
+    /// The learning-rate schedule over the budget.
+    pub schedule: train::schedule::Schedule,
     /// The view-dependence test.
     pub view_dependence: view_dependence::ViewDependence,
+    /// Pixel footprints in uv space.
+    pub footprint: footprint::Footprint,
     /// The rungs timed.
-    pub rungs: Vec<RungTrial>,
+    pub rungs: Vec<size::RungTrial>,
     /// Texels no training pixel touches, per level (zero in the asset).
     pub untouched_texels: Vec<usize>,
     /// Validation PSNR of the classical texture (the starting point).
@@ -152,7 +123,7 @@ pub struct AutoReport {
     pub texture_only: bool,
     /// The pruning pass (absent when texture only).
     pub pruning: Option<prune::Pruning>,
-    /// Asset bytes and ms per frame before pruning.
+    /// Asset bytes before pruning.
     pub unpruned_bytes: u64,
     /// Milliseconds per frame before pruning.
     pub unpruned_ms: f64,
@@ -160,6 +131,8 @@ pub struct AutoReport {
     pub pruned_bytes: u64,
     /// Milliseconds per frame after.
     pub pruned_ms: f64,
+    /// Validation PSNR of the written state.
+    pub final_val_psnr: f64,
     /// Seconds by phase.
     pub seconds: Phases,
     /// Every decision.
@@ -193,70 +166,6 @@ pub fn touched_texels(pyr: &Pyramid, views: &[View]) -> Vec<Vec<bool>> {
         .collect()
 }
 
-/// Indices of the training views held out for validation.
-fn validation_indices(n: usize) -> Vec<usize> {
-    if n < 4 {
-        return Vec::new();
-    }
-    let k = (n / 20).clamp(1, 5);
-    (0..k).map(|i| (i * n + n / 2) / k).collect()
-}
-
-fn mean_psnr(e: &[crate::eval::metrics::ViewError]) -> f64 {
-    e.iter().map(|e| e.psnr).sum::<f64>() / e.len().max(1) as f64
-}
-
-/// Writes an asset to a temporary file beside the output (or to `keep`), returns its bytes
-/// and the ms per frame of one camera through the runtime.
-fn measure_asset(
-    loaded: &Loaded,
-    parts: &ExportParts,
-    opts: &BakeOptions,
-    keep: Option<&Path>,
-    frame: Option<&crate::capture::Frame>,
-) -> Result<(u64, f64), BakeError> {
-    let tmp: PathBuf = match keep {
-        Some(p) => p.to_path_buf(),
-        None => {
-            let dir = opts
-                .output
-                .parent()
-                .filter(|p| !p.as_os_str().is_empty())
-                .unwrap_or(Path::new("."));
-            dir.join(format!(".auto-measure.{}.glb", std::process::id()))
-        }
-    };
-    let bytes = bake::write_asset(loaded, parts, dnr_format::model::DType::F16, &tmp)?;
-    let ms = match frame {
-        Some(f) => {
-            let r =
-                dnr_runtime::renderer::Renderer::from_path(&tmp).map_err(|e| BakeError::ReadBack {
-                    path: tmp.display().to_string(),
-                    message: e.to_string(),
-                });
-            match r {
-                Ok(r) => {
-                    let (min, _) = crate::bench::time_min_median(3, || {
-                        std::hint::black_box(r.render(&f.camera, f.width(), f.height()).ok());
-                    });
-                    1e3 * min
-                }
-                Err(e) => {
-                    if keep.is_none() {
-                        let _ = std::fs::remove_file(&tmp);
-                    }
-                    return Err(e);
-                }
-            }
-        }
-        None => f64::NAN,
-    };
-    if keep.is_none() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    Ok((bytes, ms))
-}
-
 /// The auto bake (see the module documentation).
 pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError> {
     let t_start = Instant::now();
@@ -271,87 +180,39 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     } else {
         AUTO_DEFAULT_BUDGET
     };
-    let mut loaded = bake::load(cfg, opts)?;
+    // 1. Validation views (held out by the pipeline).
+    let loaded = pipeline::load(cfg, opts)?;
     let t_analysis = Instant::now();
+    let mut decisions = Vec::new();
 
-    // 1. Validation views last, so `train[..n_fit]` is what the first phase fits.
-    let val_idx = validation_indices(loaded.train.len());
-    let all = std::mem::take(&mut loaded.train);
-    let (mut fit, mut val) = (Vec::new(), Vec::new());
-    for (i, v) in all.into_iter().enumerate() {
-        if val_idx.contains(&i) {
-            val.push(v);
-        } else {
-            fit.push(v);
-        }
-    }
-    let n_fit = fit.len();
-    fit.append(&mut val);
-    loaded.train = fit;
-    let loaded = loaded;
-    let fit = &loaded.train[..n_fit];
-    let val: &[View] = if n_fit < loaded.train.len() {
-        &loaded.train[n_fit..]
-    } else {
-        &loaded.train
+    // 2-4. What the scene needs, what the machine affords.
+    let vd = decide_view_dependence(loaded.fit(), &mut decisions);
+    let fp = footprint::measure(loaded.fit());
+    let cfg = TrainConfig {
+        time_budget: budget,
+        ..cfg.clone()
     };
-    let val_frame = val_idx
-        .first()
-        .and_then(|&i| loaded.capture.train.get(i))
-        .or(loaded.capture.train.first());
-
-    // 2. View dependence.
-    let vd = view_dependence::measure(fit);
-
-    // 3. Rungs, largest first; the chosen trainer keeps its timed steps.
-    let mut rungs = Vec::new();
-    let mut chosen = None;
-    for (i, r) in RUNGS.iter().enumerate() {
-        let c = TrainConfig {
-            resolution: r.resolution,
-            levels: r.levels,
-            widths: r.widths.to_vec(),
-            arch: Arch::Unet,
-            sh: vd.view_dependent,
-            time_budget: budget * PRUNE_AT,
-            ..cfg.clone()
-        };
-        let mut tr = Trainer::new(c, fit)?;
-        // 4. Untouched texels are zero from the start.
-        let touched = touched_texels(&tr.pyr, fit);
+    let sized = decide_size(
+        &cfg,
+        &loaded,
+        vd.view_dependent,
+        &fp,
+        t_analysis,
+        &mut decisions,
+    )?;
+    let mut tr = sized.trainer;
+    let mut classical_pyr = sized.classical;
+    let untouched = decide_untouched(&mut tr, loaded.fit(), &mut decisions);
+    let classical_psnr = {
+        // The classical texture's colour channels alone, with the same texels zeroed.
+        let touched = touched_texels(&classical_pyr, loaded.fit());
+        std::mem::swap(&mut tr.pyr, &mut classical_pyr);
         tr.zero_untouched(&touched);
-        let untouched: Vec<usize> = touched
-            .iter()
-            .map(|t| t.iter().filter(|&&b| !b).count())
-            .collect();
-        let classical = (tr.pyr.clone(), mean_psnr(&tr.evaluate_texture_only(val)?));
-        // The first steps fill the tensor pool and the caches; time the ones after.
-        for _ in 0..WARM_STEPS {
-            tr.step(fit)?;
-        }
-        let ts = Instant::now();
-        for _ in 0..TIMED_STEPS {
-            tr.step(fit)?;
-        }
-        let step_s = ts.elapsed().as_secs_f64() / TIMED_STEPS as f64;
-        let left = budget * PRUNE_AT - t_analysis.elapsed().as_secs_f64();
-        let steps = left.max(0.0) / step_s;
-        let ok = steps >= MIN_STEPS || i + 1 == RUNGS.len();
-        rungs.push(RungTrial {
-            name: r.name.into(),
-            resolution: r.resolution,
-            levels: r.levels,
-            widths: r.widths.to_vec(),
-            step_ms: 1e3 * step_s,
-            steps_before_pruning: steps,
-            chosen: ok,
-        });
-        if ok {
-            chosen = Some((tr, classical, untouched));
-            break;
-        }
-    }
-    let (mut tr, (classical_pyr, classical_psnr), untouched) = chosen.expect("last rung");
+        let e = tr.evaluate_texture_only(loaded.val());
+        std::mem::swap(&mut tr.pyr, &mut classical_pyr);
+        let e = e?;
+        e.iter().map(|e| e.psnr).sum::<f64>() / e.len().max(1) as f64
+    };
     let mut phases = Phases {
         analysis: t_analysis.elapsed().as_secs_f64(),
         ..Phases::default()
@@ -364,88 +225,35 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     // 5. Train to the pruning point.
     let progress = Progress::new(opts.progress, &tr.cfg);
     progress.println(&format!(
-        "dnr-bake auto: SH {} (view-dependence {:.3}, threshold {}), rung {} ({:.0} ms/step), {} validation views",
+        "dnr-bake auto: SH {}, {}, {} validation views",
         if vd.view_dependent { "kept" } else { "dropped" },
-        vd.excess_explained,
-        vd.threshold,
-        rungs.last().map_or("?", |r| r.name.as_str()),
-        rungs.last().map_or(f64::NAN, |r| r.step_ms),
-        val_idx.len()
+        sized.summary,
+        loaded.val_idx.len()
     ));
-    train::run(
-        &mut tr,
-        &mut state,
-        fit,
-        val,
-        None,
-        |t, s| progress.on_step(t, s),
-        |r| progress.on_record(r),
-    )?;
-    phases.train = state.train_secs - phases.analysis;
-    let trained_psnr = prune::psnr(&tr, val)?;
-
-    let mut decisions = vec![
-        Decision {
-            what: "view dependence".into(),
-            choice: if vd.view_dependent {
-                "keep the SH layer".into()
-            } else {
-                "drop the SH layer".into()
-            },
-            cost_db: None,
-            bytes_saved: None,
-            ms_saved: None,
-            seconds_saved: None,
-            why: format!(
-                "the view direction explains {:.3} of the within-texel colour variance beyond chance ({} texels, {} observations; threshold {})",
-                vd.excess_explained, vd.texels, vd.observations, vd.threshold
-            ),
-        },
-        Decision {
-            what: "network and texture size".into(),
-            choice: rungs
-                .last()
-                .map(|r| format!("{} ({}x{}, {} levels, U-Net {:?})", r.name, r.resolution, r.resolution, r.levels, r.widths))
-                .unwrap_or_default(),
-            cost_db: None,
-            bytes_saved: None,
-            ms_saved: None,
-            seconds_saved: None,
-            why: rungs
-                .iter()
-                .map(|r| format!("{}: {:.1} ms/step, {:.0} steps before pruning", r.name, r.step_ms, r.steps_before_pruning))
-                .collect::<Vec<_>>()
-                .join("; ")
-                + &format!(" (a rung needs {MIN_STEPS})"),
-        },
-        Decision {
-            what: "texels no training pixel touches".into(),
-            choice: "zero, never updated".into(),
-            cost_db: None,
-            bytes_saved: None,
-            ms_saved: None,
-            seconds_saved: None,
-            why: format!(
-                "{} of {} texels over the levels",
-                untouched.iter().sum::<usize>(),
-                tr.pyr.levels.iter().map(|l| l.width * l.height).sum::<usize>()
-            ),
-        },
-    ];
-
+    phases.train = train_phase(&mut tr, &mut state, PRUNE_AT, &loaded, &progress)?;
+    let trained_psnr = train::run::mean_psnr(&tr, loaded.val())?;
     let net = tr.export_net();
-    let unpruned = ExportParts::of(&tr, &net);
-    let (unpruned_bytes, unpruned_ms) = measure_asset(
+    let (unpruned_bytes, unpruned_ms) = pipeline::measure_asset(
         &loaded,
-        &unpruned,
+        &ExportParts::of(&tr, &net),
         opts,
         opts.write_unpruned.as_deref(),
-        val_frame,
+        loaded.val_frame(),
     )?;
 
-    let texture_only = trained_psnr - classical_psnr < PRUNE_DB;
-    let (pyr, net, sh, out_ch, pruning) = if texture_only {
+    let (pyr, net, sh, out_ch, pruning) = if trained_psnr - classical_psnr < PRUNE_DB {
         // The network buys nothing: the classical texture's colour channels alone.
+        decisions.push(Decision {
+            what: "renderer".into(),
+            choice: "texture only (the classical texture)".into(),
+            cost_db: Some(trained_psnr - classical_psnr),
+            bytes_saved: None,
+            ms_saved: None,
+            seconds_saved: Some(budget - state.train_secs),
+            why: format!(
+                "the trained network reaches {trained_psnr:.2} dB on the validation views, the classical texture {classical_psnr:.2} dB: the network buys less than {PRUNE_DB} dB"
+            ),
+        });
         let (p, n) = prune::strip_channels(
             &classical_pyr,
             &ExportNet::None,
@@ -453,108 +261,54 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         );
         (p, n, None, 3, None)
     } else {
-        // 6. Prune, then fine-tune on every training view.
-        let pruning = prune::prune(&mut tr, val, PRUNE_DB)?;
+        decisions.push(Decision::plain(
+            "renderer",
+            "keep the network".into(),
+            format!("it reaches {trained_psnr:.2} dB on the validation views against {classical_psnr:.2} dB for the classical texture"),
+        ));
+        // 5. Prune; 6. train on to the end of the budget.
+        let pruning = prune::prune(&mut tr, loaded.val(), PRUNE_DB)?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
-        tr.cfg.time_budget = budget;
-        // The budget is known, so the last phase anneals: smaller steps settle the state the
-        // asset is written from (the fixed presets keep the paper's constant rate).
-        tr.set_learning_rates(tr.cfg.lr_net * FINE_TUNE_LR, tr.cfg.lr_tex * FINE_TUNE_LR);
-        let before = state.train_secs;
-        train::run(
-            &mut tr,
-            &mut state,
-            &loaded.train,
-            val,
-            None,
-            |t, s| progress.on_step(t, s),
-            |r| progress.on_record(r),
-        )?;
-        phases.fine_tune = state.train_secs - before;
+        phases.train_after_pruning = train_phase(&mut tr, &mut state, 1.0, &loaded, &progress)?;
         let (p, n) = prune::strip_channels(&tr.pyr, &tr.export_net(), &pruning.channels);
         (p, n, tr.sh_layer(), tr.out_ch, Some(pruning))
     };
     progress.finish();
+    let final_val_psnr = state.last_val;
     let parts = ExportParts {
         pyr: &pyr,
         sh,
         net: &net,
         out_ch,
     };
-    let (pruned_bytes, pruned_ms) = measure_asset(&loaded, &parts, opts, None, val_frame)?;
-    let saved_bytes = unpruned_bytes as i64 - pruned_bytes as i64;
-    let saved_ms = unpruned_ms - pruned_ms;
-    if texture_only {
-        decisions.push(Decision {
-            what: "renderer".into(),
-            choice: "texture only (the classical texture)".into(),
-            cost_db: Some(trained_psnr - classical_psnr),
-            bytes_saved: Some(saved_bytes),
-            ms_saved: Some(saved_ms),
-            seconds_saved: Some(budget - state.train_secs),
-            why: format!(
-                "the trained network reaches {trained_psnr:.2} dB on the validation views, the classical texture {classical_psnr:.2} dB: the network buys less than {PRUNE_DB} dB"
-            ),
-        });
-    } else if let Some(p) = &pruning {
-        decisions.push(Decision {
-            what: "renderer".into(),
-            choice: "keep the network".into(),
-            cost_db: None,
-            bytes_saved: None,
-            ms_saved: None,
-            seconds_saved: None,
-            why: format!(
-                "it reaches {trained_psnr:.2} dB on the validation views against {classical_psnr:.2} dB for the classical texture"
-            ),
-        });
-        let items: Vec<String> = p
-            .trials
-            .iter()
-            .filter(|t| t.pruned)
-            .map(|t| t.item.clone())
-            .collect();
-        decisions.push(Decision {
-            what: "pyramid levels and channels".into(),
-            choice: if items.is_empty() {
-                "keep all".into()
-            } else {
-                format!("remove {}", items.join(", "))
-            },
-            cost_db: Some(p.joint_cost_db),
-            bytes_saved: Some(saved_bytes),
-            ms_saved: Some(saved_ms),
-            seconds_saved: None,
-            why: p
-                .trials
-                .iter()
-                .map(|t| format!("{}: {:+.3} dB", t.item, -t.cost_db))
-                .collect::<Vec<_>>()
-                .join(", ")
-                + &format!(
-                    " (removed when it costs less than {PRUNE_DB} dB; then fine-tuned {:.0} s on every training view at {FINE_TUNE_LR}x the learning rates)",
-                    phases.fine_tune
-                ),
-        });
+    let (pruned_bytes, pruned_ms) =
+        pipeline::measure_asset(&loaded, &parts, opts, None, loaded.val_frame())?;
+    if let Some(p) = &pruning {
+        decisions.push(pruning_decision(
+            p,
+            unpruned_bytes as i64 - pruned_bytes as i64,
+            unpruned_ms - pruned_ms,
+            phases.train_after_pruning,
+        ));
     }
     let report = AutoReport {
         budget,
-        validation_views: val_idx
-            .iter()
-            .filter_map(|&i| loaded.capture.train.get(i).map(|f| f.name.clone()))
-            .collect(),
+        validation_views: loaded.val_names(),
+        schedule: tr.cfg.schedule,
         view_dependence: vd,
-        rungs,
+        footprint: fp,
+        rungs: sized.rungs,
         untouched_texels: untouched,
         classical_psnr,
         trained_psnr,
-        texture_only,
+        texture_only: pruning.is_none(),
         pruning,
         unpruned_bytes,
         unpruned_ms,
         pruned_bytes,
         pruned_ms,
+        final_val_psnr,
         seconds: phases,
         decisions,
     };
@@ -564,5 +318,176 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         state,
         auto: Some(&report),
     };
-    bake::finish(&loaded, &parts, outcome, opts, t_start)
+    pipeline::finish(&loaded, &parts, outcome, opts, t_start)
+}
+
+/// Phase 2: keep the SH layer only when the training images show view-dependent colour.
+pub fn decide_view_dependence(
+    fit: &[View],
+    decisions: &mut Vec<Decision>,
+) -> view_dependence::ViewDependence {
+    let vd = view_dependence::measure(fit);
+    decisions.push(Decision::plain(
+        "view dependence",
+        if vd.view_dependent {
+            "keep the SH layer".into()
+        } else {
+            "drop the SH layer".into()
+        },
+        format!(
+            "the view direction explains {:.3} of the within-texel colour variance beyond chance ({} texels, {} observations; threshold {})",
+            vd.excess_explained, vd.texels, vd.observations, vd.threshold
+        ),
+    ));
+    vd
+}
+
+/// What [`decide_size`] chose: the trainer of the chosen rung (its timed steps taken).
+pub struct Sized {
+    /// The trainer, at the chosen size.
+    pub trainer: Trainer,
+    /// Its texture before the timed steps: the classical texture.
+    pub classical: Pyramid,
+    /// Every rung timed.
+    pub rungs: Vec<size::RungTrial>,
+    /// One line for the progress display.
+    pub summary: String,
+}
+
+/// Phase 3: network and texture size (see [`size`]).
+pub fn decide_size(
+    cfg: &TrainConfig,
+    loaded: &Loaded,
+    sh: bool,
+    fp: &footprint::Footprint,
+    t_analysis: Instant,
+    decisions: &mut Vec<Decision>,
+) -> Result<Sized, BakeError> {
+    let (trainer, classical, rungs) = size::choose(cfg, loaded.fit(), sh, fp, t_analysis)?;
+    let chosen = rungs.iter().find(|r| r.chosen).or(rungs.last());
+    let summary = chosen.map_or(String::new(), |r| {
+        format!(
+            "rung {} ({:.0} ms/step), texture {}x{} in {} levels",
+            r.name, r.step_ms, r.resolution, r.resolution, r.levels
+        )
+    });
+    decisions.push(Decision::plain(
+        "network and texture size",
+        chosen
+            .map(|r| {
+                format!(
+                    "{} ({}x{}, {} levels, U-Net {:?})",
+                    r.name, r.resolution, r.resolution, r.levels, r.widths
+                )
+            })
+            .unwrap_or_default(),
+        rungs
+            .iter()
+            .map(|r| {
+                format!(
+                    "{}: {:.1} ms/step, {:.0} steps in the budget",
+                    r.name, r.step_ms, r.steps_in_budget
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+            + &format!(
+                " (a rung needs {}); pixel footprint in uv {:.2e} / {:.2e} / {:.2e} at quantiles 0.1 / 0.5 / 0.9: {} texels of side resolve a pixel of the closer views",
+                size::MIN_STEPS,
+                fp.quantiles[0],
+                fp.quantiles[2],
+                fp.quantiles[4],
+                fp.resolution
+            ),
+    ));
+    Ok(Sized {
+        trainer,
+        classical,
+        rungs,
+        summary,
+    })
+}
+
+/// Phase 4: texels no training pixel touches are zero from the start and never updated;
+/// returns their count per level.
+pub fn decide_untouched(
+    tr: &mut Trainer,
+    fit: &[View],
+    decisions: &mut Vec<Decision>,
+) -> Vec<usize> {
+    let touched = touched_texels(&tr.pyr, fit);
+    tr.zero_untouched(&touched);
+    let untouched: Vec<usize> = touched
+        .iter()
+        .map(|t| t.iter().filter(|&&b| !b).count())
+        .collect();
+    decisions.push(Decision::plain(
+        "texels no training pixel touches",
+        "zero, never updated".into(),
+        format!(
+            "{} of {} texels over the levels",
+            untouched.iter().sum::<usize>(),
+            tr.pyr
+                .levels
+                .iter()
+                .map(|l| l.width * l.height)
+                .sum::<usize>()
+        ),
+    ));
+    untouched
+}
+
+/// Phases 5 and 6: trains on the fitted views up to progress `until` of the budget; returns
+/// the training seconds it took.
+pub fn train_phase(
+    tr: &mut Trainer,
+    state: &mut RunState,
+    until: f64,
+    loaded: &Loaded,
+    progress: &Progress,
+) -> Result<f64, BakeError> {
+    let before = state.train_secs;
+    train::run(
+        tr,
+        state,
+        until,
+        loaded.fit(),
+        loaded.val(),
+        &loaded.test,
+        None,
+        |t, s| progress.on_step(t, s),
+        |r| progress.on_record(r),
+    )?;
+    Ok(state.train_secs - before)
+}
+
+/// The report line of the pruning pass.
+fn pruning_decision(p: &prune::Pruning, bytes: i64, ms: f64, after: f64) -> Decision {
+    let items: Vec<String> = p
+        .trials
+        .iter()
+        .filter(|t| t.pruned)
+        .map(|t| t.item.clone())
+        .collect();
+    Decision {
+        what: "pyramid levels and channels".into(),
+        choice: if items.is_empty() {
+            "keep all".into()
+        } else {
+            format!("remove {}", items.join(", "))
+        },
+        cost_db: Some(p.joint_cost_db),
+        bytes_saved: Some(bytes),
+        ms_saved: Some(ms),
+        seconds_saved: None,
+        why: p
+            .trials
+            .iter()
+            .map(|t| format!("{}: {:+.3} dB", t.item, -t.cost_db))
+            .collect::<Vec<_>>()
+            .join(", ")
+            + &format!(
+                " (removed when it costs less than {PRUNE_DB} dB; then trained {after:.0} s more as the schedule annealed)"
+            ),
+    }
 }

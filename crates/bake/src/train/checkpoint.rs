@@ -54,6 +54,10 @@ pub struct Header {
     pub train_secs: f64,
     /// Training second of the next evaluation.
     pub next_eval: f64,
+    /// Progress of the next validation check (0 in checkpoints written before there were
+    /// checks: the first step after a resume checks).
+    #[serde(default)]
+    pub next_check: f64,
     /// Records so far, as JSON.
     pub records: serde_json::Value,
     /// Random stream: seed and word position.
@@ -232,6 +236,7 @@ mod tests {
                 step: 7,
                 train_secs: 1.5,
                 next_eval: 3.0,
+                next_check: 0.25,
                 records: serde_json::json!([]),
                 rng_seed: [3; 32],
                 rng_word_pos: 12345,

@@ -2,6 +2,8 @@
 
 use serde::Serialize;
 
+use super::schedule::Schedule;
+
 /// Which renderer architecture to train.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "camelCase")]
@@ -110,6 +112,8 @@ pub struct TrainConfig {
     pub time_budget: f64,
     /// Seconds between held-out evaluations (0 = only at the end).
     pub eval_every: f64,
+    /// Learning-rate schedule over the whole run (budget or step limit).
+    pub schedule: Schedule,
 }
 
 impl TrainConfig {
@@ -134,6 +138,7 @@ impl TrainConfig {
             threads: 0,
             time_budget: 0.0,
             eval_every: 30.0,
+            schedule: Schedule::DEFAULT,
         };
         match preset {
             Preset::Fast => TrainConfig {
@@ -151,10 +156,12 @@ impl TrainConfig {
                 steps: 60_000,
                 ..base
             },
+            // The paper's recipe, constant learning rate included.
             Preset::Paper => TrainConfig {
                 widths: vec![64, 128, 256, 512, 512],
                 alpha: false,
                 steps: 60_000,
+                schedule: Schedule::CONSTANT,
                 ..base
             },
             // The budget ends an auto bake, not a step count; the sizes here are the largest

@@ -5,11 +5,14 @@
 pub mod checkpoint;
 pub mod config;
 pub mod init;
+pub mod run;
+pub mod schedule;
 pub mod views;
+
+pub use run::{run, Checkpointing, Recovery, RunState, MAX_RECOVERIES, PSNR_COLLAPSE_DB};
 
 use std::borrow::Cow;
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use dnr_runtime::network::mlp::{Mlp, MlpParams};
@@ -88,24 +91,21 @@ pub struct Record {
     pub test_psnr: f64,
     /// Mean held-out MSE on [0,255] over object pixels.
     pub test_mse: f64,
+    /// Mean PSNR (dB) of the validation views (training views held out of training), the
+    /// figure best-state selection reads; NaN without validation views.
+    #[serde(default = "nan")]
+    pub val_psnr: f64,
+    /// Learning-rate factor of the schedule at this record.
+    #[serde(default = "one")]
+    pub lr_factor: f64,
 }
 
-/// A divergence the training loop recovered from: it rolled back to the last good state and
-/// halved both learning rates (see [`run`]).
-#[derive(Clone, Debug, Serialize, serde::Deserialize)]
-pub struct Recovery {
-    /// Step at which the divergence was seen.
-    pub step: u64,
-    /// Step of the state rolled back to.
-    pub rolled_back_to: u64,
-    /// Training seconds when it happened.
-    pub seconds: f64,
-    /// What was seen (non-finite loss, held-out PSNR collapse).
-    pub reason: String,
-    /// Network learning rate from then on.
-    pub lr_net: f32,
-    /// Texture learning rate from then on.
-    pub lr_tex: f32,
+fn nan() -> f64 {
+    f64::NAN
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// The renderer being trained.
@@ -154,6 +154,9 @@ pub struct Trainer {
     loss_n: u64,
     /// Channels pruned by `--preset auto`: held at zero in every level after each step.
     zero_channels: Vec<usize>,
+    /// The schedule's factor on the configuration's learning rates (what the optimisers use
+    /// is `cfg.lr_* * lr_scale`).
+    lr_scale: f32,
     /// Seconds spent in each phase of [`Trainer::step`] since construction.
     pub phase_seconds: PhaseSeconds,
 }
@@ -289,6 +292,7 @@ impl Trainer {
             loss_sum: 0.0,
             loss_n: 0,
             zero_channels: Vec::new(),
+            lr_scale: 1.0,
             phase_seconds: PhaseSeconds::default(),
         })
     }
@@ -552,10 +556,32 @@ impl Trainer {
         Ok(loss)
     }
 
-    /// Sets the texture and network learning rates (config and every optimiser).
+    /// Sets the base texture and network learning rates (the configuration's; the
+    /// optimisers take them times the schedule's current factor).
     pub fn set_learning_rates(&mut self, lr_net: f32, lr_tex: f32) {
         self.cfg.lr_net = lr_net;
         self.cfg.lr_tex = lr_tex;
+        self.apply_learning_rates();
+    }
+
+    /// Sets the schedule's factor on the base learning rates.
+    pub fn set_lr_scale(&mut self, scale: f32) {
+        if scale != self.lr_scale {
+            self.lr_scale = scale;
+            self.apply_learning_rates();
+        }
+    }
+
+    /// The schedule's current factor on the base learning rates.
+    pub fn lr_scale(&self) -> f32 {
+        self.lr_scale
+    }
+
+    fn apply_learning_rates(&mut self) {
+        let (lr_net, lr_tex) = (
+            self.cfg.lr_net * self.lr_scale,
+            self.cfg.lr_tex * self.lr_scale,
+        );
         self.tex_adam.iter_mut().for_each(|a| a.cfg.lr = lr_tex);
         if let Some((_, _, adam)) = self.net.params_mut() {
             adam.iter_mut().for_each(|a| a.cfg.lr = lr_net);
@@ -726,6 +752,7 @@ impl Trainer {
                 step: self.step,
                 train_secs: state.train_secs,
                 next_eval: state.next_eval,
+                next_check: state.next_check,
                 records: serde_json::to_value(&state.records).unwrap_or_default(),
                 rng_seed: self.rng.get_seed(),
                 rng_word_pos: self.rng.get_word_pos(),
@@ -827,8 +854,10 @@ impl Trainer {
         Ok(RunState {
             train_secs: c.header.train_secs,
             next_eval: c.header.next_eval,
+            next_check: c.header.next_check,
             records,
             recoveries,
+            ..RunState::default()
         })
     }
 }
@@ -930,188 +959,4 @@ pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64
         [acc[0] + s[0], acc[1] + s[1], acc[2] + s[2]]
     });
     (sums[0] + sums[1] + sums[2]) / (3.0 * n as f64)
-}
-
-/// Progress of a run that a checkpoint carries besides the trainer.
-#[derive(Clone, Debug, Default)]
-pub struct RunState {
-    /// Training seconds (evaluation excluded, initialisation included).
-    pub train_secs: f64,
-    /// Training second of the next evaluation.
-    pub next_eval: f64,
-    /// Records so far.
-    pub records: Vec<Record>,
-    /// Divergences recovered from so far.
-    pub recoveries: Vec<Recovery>,
-}
-
-/// Where and how often to checkpoint, and the flag that asks the loop to stop.
-pub struct Checkpointing<'a> {
-    /// Checkpoint file.
-    pub path: &'a Path,
-    /// Wall-clock seconds between checkpoints.
-    pub every: f64,
-    /// Set (e.g. by a Ctrl-C handler) to checkpoint and stop.
-    pub stop: &'a AtomicBool,
-}
-
-/// A held-out PSNR this far below the best so far counts as divergence.
-pub const PSNR_COLLAPSE_DB: f64 = 3.0;
-/// Recoveries tried before training gives up with [`TrainError::Diverged`].
-pub const MAX_RECOVERIES: usize = 6;
-/// At the end, the best snapshot replaces the final state when it is this much better
-/// (a margin, so that ordinary noise between evaluations never swaps states).
-pub const BEST_STATE_MARGIN_DB: f64 = 0.5;
-
-/// Trains until the step limit or the time budget, evaluating every `eval_every` seconds
-/// and checkpointing as asked. `on_step` and `on_record` drive the progress display.
-///
-/// Divergence recovery: a non-finite training loss, or a held-out PSNR that is non-finite or
-/// [`PSNR_COLLAPSE_DB`] below the best so far, rolls the trainer back to the last good state
-/// (the start, or the last evaluation that was the best so far), halves both learning rates
-/// and records a [`Recovery`] in `state` (the report lists them). After [`MAX_RECOVERIES`]
-/// the run fails. When training ends, the best evaluated state is restored if the final
-/// one is more than [`BEST_STATE_MARGIN_DB`] worse, so a budget always exports the best state.
-pub fn run(
-    trainer: &mut Trainer,
-    state: &mut RunState,
-    train: &[View],
-    test: &[View],
-    ckpt: Option<&Checkpointing>,
-    mut on_step: impl FnMut(&Trainer, f64),
-    mut on_record: impl FnMut(&Record),
-) -> Result<(), TrainError> {
-    if state.next_eval <= 0.0 {
-        state.next_eval = trainer.cfg.eval_every;
-    }
-    let budget = trainer.cfg.time_budget;
-    let mut last_ckpt = Instant::now();
-    // The last good state and its held-out PSNR (the start counts as good).
-    let mut good = (trainer.checkpoint(state), f64::NEG_INFINITY);
-    let mut best_psnr = state
-        .records
-        .iter()
-        .map(|r| r.test_psnr)
-        .filter(|p| p.is_finite())
-        .fold(f64::NEG_INFINITY, f64::max);
-    let recover = |trainer: &mut Trainer,
-                   state: &mut RunState,
-                   good: &checkpoint::Checkpoint,
-                   reason: String|
-     -> Result<(), TrainError> {
-        let step = trainer.step;
-        let keep = (
-            state.train_secs,
-            state.next_eval,
-            std::mem::take(&mut state.records),
-        );
-        // Roll back first, so that even a run that gives up leaves a good state behind.
-        let lr_before = (trainer.cfg.lr_net, trainer.cfg.lr_tex);
-        trainer.restore(good, Path::new("(in-memory snapshot)"))?;
-        if state.recoveries.len() >= MAX_RECOVERIES {
-            trainer.set_learning_rates(lr_before.0, lr_before.1);
-            (state.train_secs, state.next_eval, state.records) = keep;
-            return Err(TrainError::Diverged {
-                recoveries: state.recoveries.len(),
-                step,
-                reason,
-            });
-        }
-        let (lr_net, lr_tex) = (lr_before.0 * 0.5, lr_before.1 * 0.5);
-        trainer.set_learning_rates(lr_net, lr_tex);
-        (state.train_secs, state.next_eval, state.records) = keep;
-        eprintln!(
-            "dnr-bake: {reason} at step {step}: rolled back to step {}, learning rates halved to {lr_net:e} (network) and {lr_tex:e} (texture)",
-            trainer.step
-        );
-        state.recoveries.push(Recovery {
-            step,
-            rolled_back_to: trainer.step,
-            seconds: state.train_secs,
-            reason,
-            lr_net,
-            lr_tex,
-        });
-        Ok(())
-    };
-    while trainer.step < trainer.cfg.steps && (budget <= 0.0 || state.train_secs < budget) {
-        let t0 = Instant::now();
-        let loss = trainer.step(train)?;
-        state.train_secs += t0.elapsed().as_secs_f64();
-        if !loss.is_finite() {
-            recover(trainer, state, &good.0, format!("training loss {loss}"))?;
-            continue;
-        }
-        on_step(trainer, state.train_secs);
-        if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
-            state.next_eval += trainer.cfg.eval_every;
-            let rec = record(trainer, test, state.train_secs)?;
-            on_record(&rec);
-            let psnr = rec.test_psnr;
-            state.records.push(rec);
-            if !psnr.is_finite() || psnr < best_psnr - PSNR_COLLAPSE_DB {
-                recover(
-                    trainer,
-                    state,
-                    &good.0,
-                    format!("held-out PSNR fell to {psnr:.2} dB (best {best_psnr:.2} dB)"),
-                )?;
-            } else if psnr >= best_psnr {
-                best_psnr = psnr;
-                good = (trainer.checkpoint(state), psnr);
-            }
-        }
-        if let Some(c) = ckpt {
-            let stop = c.stop.load(Ordering::SeqCst);
-            if stop || last_ckpt.elapsed().as_secs_f64() >= c.every {
-                trainer.checkpoint(state).write(c.path)?;
-                last_ckpt = Instant::now();
-            }
-            if stop {
-                return Err(TrainError::Interrupted {
-                    step: trainer.step,
-                    path: c.path.display().to_string(),
-                });
-            }
-        }
-    }
-    if !test.is_empty()
-        && state
-            .records
-            .last()
-            .is_none_or(|r: &Record| r.step != trainer.step)
-    {
-        let rec = record(trainer, test, state.train_secs)?;
-        on_record(&rec);
-        state.records.push(rec);
-    }
-    let last = state.records.last().map_or(f64::NAN, |r| r.test_psnr);
-    // A NaN final PSNR counts as worse.
-    let worse = last.is_nan() || last < good.1 - BEST_STATE_MARGIN_DB;
-    if good.1.is_finite() && worse {
-        let keep = (
-            state.train_secs,
-            state.next_eval,
-            std::mem::take(&mut state.records),
-        );
-        trainer.restore(&good.0, Path::new("(in-memory snapshot)"))?;
-        (state.train_secs, state.next_eval, state.records) = keep;
-        eprintln!(
-            "dnr-bake: the final state ({last:.2} dB) is worse than the best evaluated one ({:.2} dB at step {}): exporting the best",
-            good.1, trainer.step
-        );
-    }
-    Ok(())
-}
-
-fn record(trainer: &mut Trainer, test: &[View], seconds: f64) -> Result<Record, TrainError> {
-    let errs = trainer.evaluate(test)?;
-    let k = errs.len().max(1) as f64;
-    Ok(Record {
-        step: trainer.step,
-        seconds,
-        train_loss: trainer.take_loss(),
-        test_psnr: errs.iter().map(|e| e.psnr).sum::<f64>() / k,
-        test_mse: errs.iter().map(|e| e.mse_obj).sum::<f64>() / k,
-    })
 }

@@ -243,6 +243,8 @@ pub fn run(plan: &Plan<'_>) -> Result<Table> {
                     train_loss: f64::NAN,
                     test_psnr: summary.test_psnr,
                     test_mse: summary.test_mse,
+                    val_psnr: f64::NAN,
+                    lr_factor: f64::NAN,
                 });
             } else {
                 for &b in &plan.budgets {
@@ -446,6 +448,8 @@ mod tests {
             train_loss: 0.1,
             test_psnr: psnr,
             test_mse: 100.0 / seconds,
+            val_psnr: f64::NAN,
+            lr_factor: 1.0,
         }
     }
 

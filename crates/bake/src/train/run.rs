@@ -1,0 +1,304 @@
+//! The training loop around [`Trainer::step`]: the learning-rate schedule, validation checks
+//! that keep the best state and catch divergence, held-out records for the report, and
+//! checkpoints.
+//!
+//! Two kinds of held-out views, never mixed:
+//! - **validation** views are training views held out of training (see
+//!   `crate::pipeline::split_validation`); they decide (best state, divergence) and their
+//!   rendering counts against the budget, because it is part of the bake;
+//! - **test** views are the capture's test split; they are only reported (the records), and
+//!   their rendering is excluded from the training seconds, as PyTorch's peer excludes its
+//!   evaluation.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::checkpoint::Checkpoint;
+use super::schedule;
+use super::views::View;
+use super::{Record, TrainError, Trainer};
+
+/// A divergence the training loop recovered from: it rolled back to the last good state and
+/// halved both learning rates (see [`run`]).
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct Recovery {
+    /// Step at which the divergence was seen.
+    pub step: u64,
+    /// Step of the state rolled back to.
+    pub rolled_back_to: u64,
+    /// Training seconds when it happened.
+    pub seconds: f64,
+    /// What was seen (non-finite loss, validation PSNR collapse).
+    pub reason: String,
+    /// Network learning rate from then on (before the schedule's factor).
+    pub lr_net: f32,
+    /// Texture learning rate from then on (before the schedule's factor).
+    pub lr_tex: f32,
+}
+
+/// Progress of a run that a checkpoint carries besides the trainer.
+#[derive(Clone, Debug)]
+pub struct RunState {
+    /// Training seconds (initialisation and validation included, test records excluded).
+    pub train_secs: f64,
+    /// Training second of the next test record.
+    pub next_eval: f64,
+    /// Progress (0..1) of the next validation check.
+    pub next_check: f64,
+    /// The last validation PSNR measured (NaN before the first).
+    pub last_val: f64,
+    /// Records so far.
+    pub records: Vec<Record>,
+    /// Divergences recovered from so far.
+    pub recoveries: Vec<Recovery>,
+    /// Validation checks: (step, training seconds, validation PSNR).
+    pub checks: Vec<(u64, f64, f64)>,
+}
+
+impl Default for RunState {
+    fn default() -> Self {
+        RunState {
+            train_secs: 0.0,
+            next_eval: 0.0,
+            next_check: 0.0,
+            last_val: f64::NAN,
+            records: Vec::new(),
+            recoveries: Vec::new(),
+            checks: Vec::new(),
+        }
+    }
+}
+
+/// Where and how often to checkpoint, and the flag that asks the loop to stop.
+pub struct Checkpointing<'a> {
+    /// Checkpoint file.
+    pub path: &'a Path,
+    /// Wall-clock seconds between checkpoints.
+    pub every: f64,
+    /// Set (e.g. by a Ctrl-C handler) to checkpoint and stop.
+    pub stop: &'a AtomicBool,
+}
+
+/// A validation PSNR this far below the best so far counts as divergence.
+pub const PSNR_COLLAPSE_DB: f64 = 3.0;
+/// Recoveries tried before training gives up with [`TrainError::Diverged`].
+pub const MAX_RECOVERIES: usize = 6;
+/// Validation checks over a whole run (one at the end of each equal part of its progress).
+pub const VAL_CHECKS: u32 = 20;
+
+/// Mean PSNR of the trainer's current state on `views`.
+pub fn mean_psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
+    let e = trainer.evaluate(views)?;
+    Ok(e.iter().map(|e| e.psnr).sum::<f64>() / e.len().max(1) as f64)
+}
+
+/// Trains from the state's progress up to progress `until` (1 = the end of the run: its
+/// time budget or step limit, whichever comes first; auto stops earlier to prune, then calls
+/// again). The learning rates follow the configuration's schedule over the whole run.
+///
+/// - Every `1 / VAL_CHECKS` of progress (and at the end) the validation views are rendered;
+///   the best state so far is kept, and when the call ends the best state replaces the final
+///   one if that is worse, so the result is never worse on validation than an earlier state
+///   of the same call.
+/// - Divergence recovery: a non-finite training loss, or a validation PSNR that is
+///   non-finite or [`PSNR_COLLAPSE_DB`] below the best so far, rolls the trainer back to the
+///   best state (or the start), halves both base learning rates and records a [`Recovery`];
+///   after [`MAX_RECOVERIES`] the run fails.
+/// - Test records every `eval_every` training seconds and at the end (excluded from the
+///   training seconds); `on_step` and `on_record` drive the progress display.
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    trainer: &mut Trainer,
+    state: &mut RunState,
+    until: f64,
+    train: &[View],
+    val: &[View],
+    test: &[View],
+    ckpt: Option<&Checkpointing>,
+    mut on_step: impl FnMut(&Trainer, f64),
+    mut on_record: impl FnMut(&Record),
+) -> Result<(), TrainError> {
+    if state.next_eval <= 0.0 {
+        state.next_eval = trainer.cfg.eval_every;
+    }
+    if state.next_check <= 0.0 {
+        state.next_check = 1.0 / f64::from(VAL_CHECKS);
+    }
+    let (budget, steps, sched) = (
+        trainer.cfg.time_budget,
+        trainer.cfg.steps,
+        trainer.cfg.schedule,
+    );
+    let progress =
+        |t: &Trainer, s: &RunState| schedule::progress(s.train_secs, budget, t.step, steps);
+    let until = until.clamp(0.0, 1.0);
+    let mut last_ckpt = Instant::now();
+    // The best validated state so far (the start counts as good, with no figure).
+    let mut best: (Checkpoint, f64) = (trainer.checkpoint(state), f64::NEG_INFINITY);
+    let recover = |trainer: &mut Trainer,
+                   state: &mut RunState,
+                   good: &Checkpoint,
+                   reason: String|
+     -> Result<(), TrainError> {
+        let step = trainer.step;
+        let keep = keep_progress(state);
+        // Roll back first, so that even a run that gives up leaves a good state behind.
+        let lr_before = (trainer.cfg.lr_net, trainer.cfg.lr_tex);
+        trainer.restore(good, Path::new("(in-memory snapshot)"))?;
+        if state.recoveries.len() >= MAX_RECOVERIES {
+            trainer.set_learning_rates(lr_before.0, lr_before.1);
+            put_progress(state, keep);
+            return Err(TrainError::Diverged {
+                recoveries: state.recoveries.len(),
+                step,
+                reason,
+            });
+        }
+        let (lr_net, lr_tex) = (lr_before.0 * 0.5, lr_before.1 * 0.5);
+        trainer.set_learning_rates(lr_net, lr_tex);
+        put_progress(state, keep);
+        eprintln!(
+            "dnr-bake: {reason} at step {step}: rolled back to step {}, learning rates halved to {lr_net:e} (network) and {lr_tex:e} (texture)",
+            trainer.step
+        );
+        state.recoveries.push(Recovery {
+            step,
+            rolled_back_to: trainer.step,
+            seconds: state.train_secs,
+            reason,
+            lr_net,
+            lr_tex,
+        });
+        Ok(())
+    };
+    while trainer.step < steps && progress(trainer, state) < until {
+        let p = progress(trainer, state);
+        trainer.set_lr_scale(sched.factor(p) as f32);
+        let t0 = Instant::now();
+        let loss = trainer.step(train)?;
+        state.train_secs += t0.elapsed().as_secs_f64();
+        if !loss.is_finite() {
+            recover(trainer, state, &best.0, format!("training loss {loss}"))?;
+            continue;
+        }
+        on_step(trainer, state.train_secs);
+        if !val.is_empty() && progress(trainer, state) >= state.next_check {
+            let p = progress(trainer, state);
+            state.next_check = ((p * f64::from(VAL_CHECKS)).floor() + 1.0) / f64::from(VAL_CHECKS);
+            let v = check(trainer, state, val)?;
+            if !v.is_finite() || v < best.1 - PSNR_COLLAPSE_DB {
+                recover(
+                    trainer,
+                    state,
+                    &best.0,
+                    format!("validation PSNR fell to {v:.2} dB (best {:.2} dB)", best.1),
+                )?;
+                continue;
+            } else if v >= best.1 {
+                best = (trainer.checkpoint(state), v);
+            }
+        }
+        if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
+            state.next_eval += trainer.cfg.eval_every;
+            let rec = record(trainer, state, test)?;
+            on_record(&rec);
+            state.records.push(rec);
+        }
+        if let Some(c) = ckpt {
+            let stop = c.stop.load(Ordering::SeqCst);
+            if stop || last_ckpt.elapsed().as_secs_f64() >= c.every {
+                trainer.checkpoint(state).write(c.path)?;
+                last_ckpt = Instant::now();
+            }
+            if stop {
+                return Err(TrainError::Interrupted {
+                    step: trainer.step,
+                    path: c.path.display().to_string(),
+                });
+            }
+        }
+    }
+    // The final state is checked too; the best replaces it when better.
+    if !val.is_empty() {
+        let v = if state.checks.last().is_some_and(|c| c.0 == trainer.step) {
+            state.last_val
+        } else {
+            check(trainer, state, val)?
+        };
+        let worse = v.is_nan() || v < best.1;
+        if best.1.is_finite() && worse {
+            let keep = keep_progress(state);
+            let last = trainer.step;
+            trainer.restore(&best.0, Path::new("(in-memory snapshot)"))?;
+            put_progress(state, keep);
+            state.last_val = best.1;
+            eprintln!(
+                "dnr-bake: the state at step {last} ({v:.2} dB on validation) is worse than the one at step {} ({:.2} dB): keeping that",
+                trainer.step, best.1
+            );
+        }
+    }
+    if !test.is_empty()
+        && state
+            .records
+            .last()
+            .is_none_or(|r: &Record| r.step != trainer.step)
+    {
+        let rec = record(trainer, state, test)?;
+        on_record(&rec);
+        state.records.push(rec);
+    }
+    Ok(())
+}
+
+type Progress = (f64, f64, f64, f64, Vec<Record>, Vec<(u64, f64, f64)>);
+
+/// What a rollback keeps of the run's progress (time moves on, records stay).
+fn keep_progress(state: &mut RunState) -> Progress {
+    (
+        state.train_secs,
+        state.next_eval,
+        state.next_check,
+        state.last_val,
+        std::mem::take(&mut state.records),
+        std::mem::take(&mut state.checks),
+    )
+}
+
+fn put_progress(state: &mut RunState, p: Progress) {
+    (
+        state.train_secs,
+        state.next_eval,
+        state.next_check,
+        state.last_val,
+        state.records,
+        state.checks,
+    ) = p;
+}
+
+/// Renders the validation views (the time counts as training time), records the check.
+fn check(trainer: &Trainer, state: &mut RunState, val: &[View]) -> Result<f64, TrainError> {
+    let t = Instant::now();
+    let v = mean_psnr(trainer, val)?;
+    state.train_secs += t.elapsed().as_secs_f64();
+    state.last_val = v;
+    state.checks.push((trainer.step, state.train_secs, v));
+    Ok(v)
+}
+
+fn record(trainer: &mut Trainer, state: &RunState, test: &[View]) -> Result<Record, TrainError> {
+    let errs = trainer.evaluate(test)?;
+    let k = errs.len().max(1) as f64;
+    Ok(Record {
+        step: trainer.step,
+        seconds: state.train_secs,
+        train_loss: trainer.take_loss(),
+        test_psnr: errs.iter().map(|e| e.psnr).sum::<f64>() / k,
+        test_mse: errs.iter().map(|e| e.mse_obj).sum::<f64>() / k,
+        val_psnr: state.last_val,
+        lr_factor: f64::from(trainer.lr_scale()),
+    })
+}

@@ -1,0 +1,116 @@
+//! The training loop's guarantees: the schedule drives the learning rates over the run, and
+//! the state it ends with is never worse on the validation views than a state it checked.
+
+mod capture_common;
+
+use dnr_bake::capture::{Capture, LoadOptions};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig};
+use dnr_bake::train::schedule::Schedule;
+use dnr_bake::train::views::{self, View};
+use dnr_bake::train::{run, RunState, Trainer};
+
+fn sample_views() -> (Vec<View>, Vec<View>) {
+    let dir = capture_common::sample_capture();
+    let cap = Capture::load(&dir, &LoadOptions::default()).unwrap();
+    let all = views::prepare(&cap.mesh, &cap.train);
+    // Every 8th view validates.
+    let (mut fit, mut val) = (Vec::new(), Vec::new());
+    for (i, v) in all.into_iter().enumerate() {
+        if i % 8 == 4 {
+            val.push(v);
+        } else {
+            fit.push(v);
+        }
+    }
+    (fit, val)
+}
+
+fn cfg(lr: f32, steps: u64) -> TrainConfig {
+    TrainConfig {
+        resolution: 64,
+        levels: 2,
+        channels: 12,
+        arch: Arch::Unet,
+        widths: vec![4, 8],
+        steps,
+        lr_net: lr,
+        lr_tex: lr,
+        eval_every: 0.0,
+        threads: 1,
+        seed: 5,
+        ..TrainConfig::preset(Preset::Fast)
+    }
+}
+
+#[test]
+fn the_schedule_anneals_to_its_floor_over_the_steps() {
+    let (fit, val) = sample_views();
+    let c = cfg(1e-3, 60);
+    let sched = c.schedule;
+    assert_eq!(sched, Schedule::DEFAULT);
+    let mut t = Trainer::new(c, &fit).unwrap();
+    let mut state = RunState::default();
+    let mut factors = Vec::new();
+    run(
+        &mut t,
+        &mut state,
+        1.0,
+        &fit,
+        &val,
+        &[],
+        None,
+        |t, _| factors.push(t.lr_scale()),
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(t.step, 60);
+    assert_eq!(factors.len(), 60);
+    // Step i ran at the factor of progress i / 60.
+    for (i, &f) in factors.iter().enumerate() {
+        let want = sched.factor(i as f64 / 60.0) as f32;
+        assert!((f - want).abs() < 1e-6, "step {i}: {f} != {want}");
+    }
+    assert!(factors[59] < 0.05, "the last step ran at {}", factors[59]);
+    assert!(factors[10] > 0.9);
+    // Validation checks at every twentieth of the run, and at the end.
+    assert_eq!(state.checks.len(), 20, "{:?}", state.checks);
+}
+
+#[test]
+fn the_final_state_is_never_worse_on_validation_than_a_checked_one() {
+    let (fit, val) = sample_views();
+    // A constant rate 30x the paper's: training jumps around, so some checked state beats
+    // the last one, and the loop must hand that one back.
+    let mut c = cfg(3e-2, 120);
+    c.schedule = Schedule::CONSTANT;
+    let mut t = Trainer::new(c, &fit).unwrap();
+    let mut state = RunState::default();
+    run(
+        &mut t,
+        &mut state,
+        1.0,
+        &fit,
+        &val,
+        &[],
+        None,
+        |_, _| {},
+        |_| {},
+    )
+    .unwrap();
+    let best = state
+        .checks
+        .iter()
+        .map(|c| c.2)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let now = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
+    eprintln!("checks {:?}, final {now:.3}", state.checks);
+    assert!(
+        (now - best).abs() < 1e-9,
+        "final {now} dB, best check {best} dB"
+    );
+    assert!(
+        t.step < 120,
+        "the run must have handed back an earlier state (checks {:?})",
+        state.checks
+    );
+}
