@@ -172,8 +172,8 @@ fn mean_of(views: &[ViewReport]) -> MeanReport {
     }
 }
 
-/// The photograph as straight-alpha RGBA (HWC).
-fn truth_rgba(frame: &Frame) -> Vec<f32> {
+/// The photograph as straight-alpha RGBA (HWC), what renders are measured against.
+pub fn truth_rgba(frame: &Frame) -> Vec<f32> {
     let mut out = Vec::with_capacity(frame.alpha.len() * 4);
     for (rgb, &a) in frame.rgb.chunks_exact(3).zip(&frame.alpha) {
         out.extend_from_slice(rgb);

@@ -1,7 +1,7 @@
 //! `dnr bench train`: the training step and U-Net inference against the sgemm peak measured in
 //! the same run, and (with `--torch`) PyTorch's same step timed in the same run.
 //! `dnr bench render ASSET`: ms per frame of an asset at several sizes.
-//! `dnr bench bake CAPTURE`: held-out error against bake seconds (see [`super::bench_bake`]).
+//! `dnr bench bake CAPTURE...`: held-out error against bake seconds (see [`super::bench_bake`]).
 
 use std::path::PathBuf;
 use std::process::{Command, ExitCode};
@@ -45,39 +45,20 @@ enum What {
         #[arg(long, default_value_t = 0)]
         pairs: usize,
     },
-    /// Held-out PSNR against bake seconds for presets and baselines: one bake per
-    /// configuration with the largest budget, evaluated along the way; writes a JSON table
-    /// and a PNG plot (PSNR against log seconds, one curve per configuration).
+    /// Held-out PSNR, SSIM and object MSE against bake seconds, on one capture or a whole
+    /// development set: each configuration bakes once per budget (the learning-rate schedule
+    /// spans the budget) and is measured by its exported asset through the runtime; with
+    /// --torch, the PyTorch reference trains for the same seconds on the same machine. Writes
+    /// per-capture and whole-set JSON, one PNG plot (a panel per capture) and, with
+    /// --markdown, the tables with the set's mean and worst case.
     ///
     /// Configurations: the presets auto, fast, balanced, quality, paper, and the baselines
     /// classical (mean-colour texture, no learning), texture (learned texture only), mlp,
-    /// unet-nosh (no SH layer), unet-1level (no pyramid), all built on balanced. auto's
-    /// decisions depend on the budget, so it bakes once per budget and is measured by each
-    /// exported asset.
+    /// unet-nosh (no SH layer), unet-1level (no pyramid), all built on balanced.
     ///
-    /// Example: dnr bench bake capture/ --budgets 60,180,600 --out bench/
-    Bake {
-        /// Capture folder.
-        capture: PathBuf,
-        /// Presets (or any configuration names) to run.
-        #[arg(long, value_delimiter = ',', default_value = "auto,fast,balanced")]
-        presets: Vec<String>,
-        /// Leave out the baselines (classical, texture, mlp, unet-nosh, unet-1level).
-        #[arg(long)]
-        no_baselines: bool,
-        /// Budgets in seconds.
-        #[arg(long, value_delimiter = ',', default_value = "60,180,600")]
-        budgets: Vec<f64>,
-        /// Proxy mesh instead of the capture's.
-        #[arg(long)]
-        mesh: Option<PathBuf>,
-        /// Folder for the assets, reports, table (bench_bake.json) and plot (bench_bake.png).
-        #[arg(long, default_value = "bench-bake")]
-        out: PathBuf,
-        /// Worker threads (default: all cores).
-        #[arg(long, default_value_t = 0)]
-        threads: usize,
-    },
+    /// Example: dnr bench bake caps/glossy caps/text --budgets 60,300 --torch venv/bin/python
+    /// --peer dnr_torch.py --out bench/ --markdown bench/table.md
+    Bake(super::bench_bake::BakeArgs),
     /// Milliseconds per frame of an asset at several sizes (camera on a circle around it).
     Render {
         /// The asset.
@@ -112,38 +93,7 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             reps,
             against,
         } => render(asset, sizes, *reps, against),
-        What::Bake {
-            capture,
-            presets,
-            no_baselines,
-            budgets,
-            mesh,
-            out,
-            threads,
-        } => {
-            let mut configs = presets.clone();
-            if !no_baselines {
-                for b in super::bench_bake::BASELINES {
-                    if !configs.iter().any(|c| c == b) {
-                        configs.push(b.to_string());
-                    }
-                }
-            }
-            let (json, plot) = super::bench_bake::default_paths(out);
-            let table = super::bench_bake::run(&super::bench_bake::Plan {
-                capture,
-                configs,
-                budgets: budgets.clone(),
-                mesh: mesh.as_deref(),
-                out,
-                json: &json,
-                plot: &plot,
-                threads: *threads,
-            })?;
-            println!("{}", super::bench_bake::markdown(&table));
-            eprintln!("wrote {} and {}", json.display(), plot.display());
-            Ok(ExitCode::SUCCESS)
-        }
+        What::Bake(a) => super::bench_bake::main(a),
     }
 }
 

@@ -1,0 +1,300 @@
+//! `dnr bench bake CAPTURE...`: held-out error against bake seconds, on one capture or a
+//! whole development set, for presets, baselines and (with `--torch`) the PyTorch reference
+//! at the same seconds on the same machine; per capture a JSON table, and for the set the
+//! mean and worst case, a Markdown table and one PNG plot.
+//!
+//! Every preset's learning-rate schedule spans its budget, so each configuration bakes once
+//! per budget, and each cell is that bake's exported asset evaluated through the runtime on
+//! the capture's test views (f16 storage included). The curves of the plot are the
+//! held-out records of the largest budget's bake. Seconds count the initialisation and the
+//! validation checks and exclude the test-view records, as `dnr-bake` reports them; the
+//! PyTorch reference's seconds likewise exclude its evaluation.
+
+mod configs;
+mod peer;
+mod plot;
+mod table;
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use dnr_bake::bake::{bake, write_atomic, BakeOptions};
+use dnr_bake::train::Record;
+use serde::Serialize;
+
+pub use configs::{config, BASELINES};
+pub use table::{markdown, summarise, Summary};
+
+/// `dnr bench bake`'s arguments.
+#[derive(clap::Args, Debug)]
+pub struct BakeArgs {
+    /// Capture folders (one or a development set).
+    #[arg(required = true)]
+    pub captures: Vec<PathBuf>,
+    /// Presets (or any configuration names) to run.
+    #[arg(long, value_delimiter = ',', default_value = "auto")]
+    pub presets: Vec<String>,
+    /// Also run the baselines (classical, texture, mlp, unet-nosh, unet-1level).
+    #[arg(long)]
+    pub baselines: bool,
+    /// Budgets in seconds.
+    #[arg(long, value_delimiter = ',', default_value = "60,300,600")]
+    pub budgets: Vec<f64>,
+    /// Proxy mesh file name inside each capture folder instead of its own mesh (e.g.
+    /// mesh_coarse.glb).
+    #[arg(long)]
+    pub mesh_name: Option<String>,
+    /// Folder for the assets, reports, tables (bench_bake.json) and plot (bench_bake.png).
+    #[arg(long, default_value = "bench-bake")]
+    pub out: PathBuf,
+    /// Worker threads (default: all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Python with torch installed: also train the PyTorch reference (--peer) for the same
+    /// seconds on each capture, one run per budget, and measure its renders of the test
+    /// views with the same metrics.
+    #[arg(long, requires = "peer")]
+    pub torch: Option<PathBuf>,
+    /// The PyTorch reference script (dnr_torch.py).
+    #[arg(long)]
+    pub peer: Option<PathBuf>,
+    /// U-Net width multiplier of the PyTorch reference (0.25: the CPU-sized 16..128).
+    #[arg(long, default_value_t = 0.25)]
+    pub peer_width: f64,
+    /// Also write the tables as Markdown here.
+    #[arg(long)]
+    pub markdown: Option<PathBuf>,
+}
+
+/// One cell: a configuration's bake of a capture at a budget.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Cell {
+    /// Configuration name (`pytorch` for the reference).
+    pub config: String,
+    /// Budget in seconds.
+    pub budget: f64,
+    /// Training seconds the bake took.
+    pub seconds: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// Held-out PSNR (dB), full frame on white.
+    pub psnr: f64,
+    /// Held-out SSIM.
+    pub ssim: f64,
+    /// Held-out MSE on [0,255] over object pixels.
+    pub mse: f64,
+    /// Asset bytes (0 for the reference, which writes none).
+    pub asset_bytes: u64,
+}
+
+/// One capture's table.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Table {
+    /// Capture folder.
+    pub capture: String,
+    /// Short name (the folder's, with the proxy's stem when `--mesh-name` was given).
+    pub name: String,
+    /// Proxy mesh used instead of the capture's own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
+    /// Budgets in seconds.
+    pub budgets: Vec<f64>,
+    /// One cell per configuration and budget.
+    pub cells: Vec<Cell>,
+    /// Held-out records of each configuration's largest-budget bake (the plot's curves).
+    pub curves: Vec<(String, Vec<Record>)>,
+}
+
+/// Everything one `dnr bench bake` measured.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Suite {
+    /// Per capture.
+    pub tables: Vec<Table>,
+    /// Mean and worst case over the captures, per configuration and budget.
+    pub summary: Vec<Summary>,
+}
+
+/// Runs `dnr bench bake`.
+pub fn main(a: &BakeArgs) -> Result<ExitCode> {
+    if a.budgets.is_empty() || a.budgets.iter().any(|b| !(b.is_finite() && *b > 0.0)) {
+        bail!("--budgets must be positive seconds, got {:?}", a.budgets);
+    }
+    let mut names = a.presets.clone();
+    if a.baselines {
+        for b in BASELINES {
+            if !names.iter().any(|c| c == b) {
+                names.push(b.to_string());
+            }
+        }
+    }
+    // Refuse unknown names before baking anything.
+    for n in &names {
+        config(n)?;
+    }
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut tables = Vec::new();
+    for capture in &a.captures {
+        let t = run_capture(a, capture, &names)?;
+        // Written after each capture, so a long run that stops keeps what it measured.
+        let dir = a.out.join(&t.name);
+        write_json(&dir.join("bench_bake.json"), &t)?;
+        tables.push(t);
+        write_suite(a, &tables)?;
+    }
+    let suite = write_suite(a, &tables)?;
+    println!("{}", markdown(&suite));
+    eprintln!(
+        "wrote {} and {}",
+        a.out.join("bench_bake.json").display(),
+        a.out.join("bench_bake.png").display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<()> {
+    if let Some(d) = path.parent() {
+        std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+    }
+    let text = serde_json::to_string_pretty(v)?;
+    write_atomic(path, text.as_bytes()).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Writes the set's JSON, plot and Markdown for the tables so far.
+fn write_suite(a: &BakeArgs, tables: &[Table]) -> Result<Suite> {
+    let suite = Suite {
+        tables: tables.to_vec(),
+        summary: summarise(tables),
+    };
+    write_json(&a.out.join("bench_bake.json"), &suite)?;
+    let png = plot::plot(&suite).context("drawing the plot")?;
+    let p = a.out.join("bench_bake.png");
+    write_atomic(&p, &png).with_context(|| format!("cannot write {}", p.display()))?;
+    if let Some(md) = &a.markdown {
+        write_atomic(md, markdown(&suite).as_bytes())
+            .with_context(|| format!("cannot write {}", md.display()))?;
+    }
+    Ok(suite)
+}
+
+/// The short name of a capture run.
+fn run_name(capture: &Path, mesh_name: Option<&str>) -> String {
+    let base = capture
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "capture".into());
+    match mesh_name {
+        Some(m) => {
+            let stem = Path::new(m)
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            format!("{base}-{stem}")
+        }
+        None => base,
+    }
+}
+
+/// Bakes every configuration at every budget on one capture (and the reference).
+fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> {
+    let name = run_name(capture, a.mesh_name.as_deref());
+    let dir = a.out.join(&name);
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mesh = a.mesh_name.as_ref().map(|m| capture.join(m));
+    if let Some(m) = &mesh {
+        if !m.is_file() {
+            bail!("{}: no such proxy mesh (--mesh-name)", m.display());
+        }
+    }
+    let max_budget = a.budgets.iter().copied().fold(0.0, f64::max);
+    let mut table = Table {
+        capture: capture.display().to_string(),
+        name: name.clone(),
+        mesh: mesh.as_ref().map(|m| m.display().to_string()),
+        budgets: a.budgets.clone(),
+        cells: Vec::new(),
+        curves: Vec::new(),
+    };
+    for cname in names {
+        let mut cfg = config(cname)?;
+        cfg.threads = a.threads;
+        for &budget in &a.budgets {
+            cfg.time_budget = budget;
+            cfg.eval_every = (budget / 10.0).clamp(5.0, 30.0);
+            let stem = format!("{cname}-{budget}");
+            let output = dir.join(format!("{stem}.glb"));
+            eprintln!(
+                "dnr bench bake: {name}: {cname} for {budget} s -> {}",
+                output.display()
+            );
+            let opts = BakeOptions {
+                capture: capture.to_path_buf(),
+                output: output.clone(),
+                mesh: mesh.clone(),
+                report: Some(dir.join(format!("{stem}.json"))),
+                resume: false,
+                progress: true,
+                checkpoint_every: 1e9,
+                limits: Default::default(),
+                write_f32: None,
+                write_unpruned: None,
+            };
+            let s = bake(&cfg, &opts).with_context(|| format!("baking `{stem}` of {name}"))?;
+            table.cells.push(Cell {
+                config: cname.clone(),
+                budget,
+                seconds: s.train_seconds,
+                steps: s.steps,
+                psnr: s.test_psnr,
+                ssim: s.test_ssim,
+                mse: s.test_mse,
+                asset_bytes: s.asset_bytes,
+            });
+            if budget == max_budget {
+                table.curves.push((cname.clone(), s.records.clone()));
+            }
+        }
+    }
+    if let (Some(py), Some(script)) = (&a.torch, &a.peer) {
+        let p = peer::Peer {
+            python: py,
+            script,
+            width: a.peer_width,
+            threads: a.threads,
+        };
+        for &budget in &a.budgets {
+            eprintln!("dnr bench bake: {name}: PyTorch reference for {budget} s");
+            let (cell, records) = p
+                .run(
+                    capture,
+                    mesh.as_deref(),
+                    budget,
+                    &dir.join(format!("pytorch-{budget}")),
+                )
+                .with_context(|| format!("PyTorch reference on {name} for {budget} s"))?;
+            table.cells.push(cell);
+            if budget == max_budget {
+                table.curves.push(("pytorch".into(), records));
+            }
+        }
+    }
+    Ok(table)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_names_carry_the_proxy() {
+        assert_eq!(run_name(Path::new("caps/duck"), None), "duck");
+        assert_eq!(
+            run_name(Path::new("caps/duck/"), Some("mesh_coarse.glb")),
+            "duck-mesh_coarse"
+        );
+    }
+}

@@ -1,0 +1,216 @@
+//! One picture for the whole set: a panel per capture, held-out PSNR against bake seconds
+//! (log axis), a curve per configuration (its largest-budget bake's records) and a dot per
+//! budget (each budget's own bake).
+
+use anyhow::{bail, Context, Result};
+use plotters::prelude::*;
+
+use super::{Suite, Table};
+
+/// The bundled font the plot's text is drawn with (DejaVu Sans; licence beside it), so
+/// plotting needs no system fonts.
+static FONT: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
+
+/// Colours by configuration, in order of first appearance.
+pub const COLOURS: [RGBColor; 9] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(23, 190, 207),
+];
+
+/// Panel size in pixels.
+const PANEL: (u32, u32) = (640, 420);
+
+/// The suite's plot as PNG bytes.
+pub fn plot(s: &Suite) -> Result<Vec<u8>> {
+    static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let font_ok = *REGISTERED.get_or_init(|| {
+        plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_ok()
+    });
+    if !font_ok {
+        bail!("the bundled DejaVu Sans font could not be loaded");
+    }
+    let n = s.tables.len().max(1);
+    let cols = n.min(3);
+    let rows = n.div_ceil(cols);
+    let (w, h) = (PANEL.0 * cols as u32, PANEL.1 * rows as u32);
+    let mut configs: Vec<String> = Vec::new();
+    for t in &s.tables {
+        for c in &t.cells {
+            if !configs.contains(&c.config) {
+                configs.push(c.config.clone());
+            }
+        }
+    }
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("plot: {e}");
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let panels = root.split_evenly((rows, cols));
+        for (t, area) in s.tables.iter().zip(panels.iter()) {
+            panel(t, area, &configs).map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    let mut png = Vec::new();
+    {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(&mut png)
+            .write_image(&buf, w, h, image::ExtendedColorType::Rgb8)
+            .context("encoding the plot")?;
+    }
+    Ok(png)
+}
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::error::Error>> {
+    let curve_points = t
+        .curves
+        .iter()
+        .flat_map(|(_, r)| r.iter().map(|x| (x.seconds, x.test_psnr)));
+    let cell_points = t.cells.iter().map(|c| (c.seconds, c.psnr));
+    let points: Vec<(f64, f64)> = curve_points
+        .chain(cell_points)
+        .filter(|(s, p)| s.is_finite() && *s > 0.0 && p.is_finite())
+        .collect();
+    let x_hi = t.budgets.iter().copied().fold(1.0, f64::max) * 1.15;
+    let x_lo = (t.budgets.iter().copied().fold(x_hi, f64::min) / 8.0).max(0.5);
+    // The interesting range: from a little below the worst budget dot to above the best.
+    let dots = t.cells.iter().map(|c| c.psnr).filter(|p| p.is_finite());
+    let (lo, hi) = dots.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+        (a.min(p), b.max(p))
+    });
+    let (y_lo, y_hi) = if lo.is_finite() {
+        ((lo - 4.0).floor(), (hi + 1.0).ceil())
+    } else {
+        (0.0, 40.0)
+    };
+    let title = match &t.mesh {
+        Some(_) => format!("{} (coarse proxy)", t.name),
+        None => t.name.clone(),
+    };
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d((x_lo..x_hi).log_scale(), y_lo..y_hi)?;
+    chart
+        .configure_mesh()
+        .x_desc("bake seconds (log)")
+        .y_desc("held-out PSNR (dB)")
+        .label_style(("sans-serif", 12))
+        .draw()?;
+    let _ = points;
+    for (i, name) in configs.iter().enumerate() {
+        let colour = COLOURS[i % COLOURS.len()];
+        if let Some((_, recs)) = t.curves.iter().find(|(c, _)| c == name) {
+            let curve: Vec<(f64, f64)> = recs
+                .iter()
+                .filter(|r| r.seconds >= x_lo && r.test_psnr.is_finite())
+                .map(|r| (r.seconds, r.test_psnr.clamp(y_lo, y_hi)))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(curve, colour.stroke_width(2)))?
+                .label(name.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
+        }
+        let dots = t
+            .cells
+            .iter()
+            .filter(|c| &c.config == name && c.psnr.is_finite())
+            .map(|c| {
+                Circle::new(
+                    (c.seconds.clamp(x_lo, x_hi), c.psnr.clamp(y_lo, y_hi)),
+                    5,
+                    colour.filled(),
+                )
+            });
+        chart.draw_series(dots)?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .label_font(("sans-serif", 12))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{Cell, Suite, Table};
+    use super::*;
+    use dnr_bake::train::Record;
+
+    fn rec(seconds: f64, psnr: f64) -> Record {
+        Record {
+            step: 1,
+            seconds,
+            train_loss: 0.1,
+            test_psnr: psnr,
+            test_mse: 10.0,
+            val_psnr: f64::NAN,
+            lr_factor: 1.0,
+        }
+    }
+
+    #[test]
+    fn one_panel_per_capture_with_every_configuration() {
+        let table = |name: &str| Table {
+            capture: name.into(),
+            name: name.into(),
+            mesh: None,
+            budgets: vec![60.0, 300.0],
+            cells: ["auto", "pytorch"]
+                .iter()
+                .flat_map(|c| {
+                    [60.0, 300.0].map(|b| Cell {
+                        config: (*c).into(),
+                        budget: b,
+                        seconds: b,
+                        steps: 1,
+                        psnr: 30.0 + b / 100.0,
+                        ssim: 0.9,
+                        mse: 10.0,
+                        asset_bytes: 1,
+                    })
+                })
+                .collect(),
+            curves: vec![
+                (
+                    "auto".into(),
+                    (1..30)
+                        .map(|i| rec(10.0 * i as f64, 25.0 + i as f64 / 5.0))
+                        .collect(),
+                ),
+                (
+                    "pytorch".into(),
+                    (1..30)
+                        .map(|i| rec(10.0 * i as f64, 24.0 + i as f64 / 6.0))
+                        .collect(),
+                ),
+            ],
+        };
+        let s = Suite {
+            tables: vec![table("a"), table("b"), table("c"), table("d")],
+            summary: Vec::new(),
+        };
+        let png = plot(&s).unwrap();
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (3 * PANEL.0, 2 * PANEL.1));
+        let has = |c: RGBColor| img.pixels().any(|p| p.0 == [c.0, c.1, c.2]);
+        assert!(has(COLOURS[0]) && has(COLOURS[1]));
+    }
+}
