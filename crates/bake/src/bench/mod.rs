@@ -1,6 +1,7 @@
-//! U-Net training-step and inference benchmarks (what `dnr bench train` / `dnr bench render`
-//! print): min-of-reps wall time, conv FLOPs per step and the achieved rate as a fraction of an
-//! sgemm peak measured in the same run with the same GEMM.
+//! The measurements behind `dnr bench train` and `dnr bench render`.
+//!
+//! U-Net training-step and inference benchmarks: min-of-reps wall time, conv FLOPs per step and the
+//! achieved rate as a fraction of an sgemm peak measured in the same run with the same GEMM.
 
 use crate::kernels::adam::{Adam, AdamConfig};
 use crate::kernels::loss::l1_loss;

@@ -1,6 +1,8 @@
-//! The whole training step as the baker runs it (texture sampling, SH, U-Net forward and
-//! backward, losses, texture scatter, sparse Adam on texels, Adam on weights), on synthetic
-//! views of the size asked: what `dnr bench train` times against PyTorch's same step.
+//! The baker's whole training step on synthetic views (the "step" rows).
+//!
+//! The step as the baker runs it (texture sampling, SH, U-Net forward and backward, losses, texture
+//! scatter, sparse Adam on texels, Adam on weights), on synthetic views of the size asked: what
+//! `dnr bench train` times against PyTorch's same step.
 
 use dnr_runtime::gbuffer::GBuffer;
 use rand::{Rng, SeedableRng};
