@@ -75,6 +75,11 @@ pub fn time_steady(reps: usize, warm: bool, mut f: impl FnMut()) -> (f64, f64) {
     (t[0], t[t.len() / 2])
 }
 
+/// Worker threads of the global pool, which the benchmarks (and the runtime) run on.
+pub fn worker_threads() -> usize {
+    rayon::current_num_threads()
+}
+
 /// GFLOP/s of a square 1024 sgemm with [`gemm_nn`] (best of `reps`).
 pub fn sgemm_peak_gflops(reps: usize) -> f64 {
     let n = 1024;
@@ -312,7 +317,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
         peak_gflops: before.0.max(after.0),
         fma_peak_gflops: before.1.max(after.1),
         simd: simd_level(),
-        threads: rayon::current_num_threads(),
+        threads: worker_threads(),
         rows,
         conv_layers,
     }
