@@ -157,7 +157,7 @@ fn git_describe() -> Option<String> {
     (out.status.success() && !s.is_empty()).then_some(s)
 }
 
-/// CPU model, logical CPUs and memory, from what the OS tells (Linux: `/proc`).
+/// CPU model, logical CPUs and memory, from what the OS tells (on Linux, its proc files).
 fn machine() -> String {
     let cpus = std::thread::available_parallelism()
         .map(|n| n.get())
