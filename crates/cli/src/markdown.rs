@@ -250,14 +250,25 @@ pub fn splice(file: &Path, text: Option<&str>, key: &str, body: &str) -> Result<
     }
 }
 
+/// The text of `file`, None when there is no such file.
+fn read_existing(file: &Path) -> Result<Option<String>> {
+    match std::fs::read_to_string(file) {
+        Ok(t) => Ok(Some(t)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e).with_context(|| file.display().to_string()),
+    }
+}
+
+/// Checks that section `key` can be written to `file`, before a long measurement whose
+/// result would otherwise be lost.
+pub fn check_section(file: &Path, key: &str) -> Result<()> {
+    splice(file, read_existing(file)?.as_deref(), key, "").map(|_| ())
+}
+
 /// Writes section `key` into `file` (see the module documentation): to a temporary file
 /// beside it, then renamed over it, so a failure leaves the old file whole.
 pub fn write_section(file: &Path, key: &str, body: &str) -> Result<()> {
-    let old = match std::fs::read_to_string(file) {
-        Ok(t) => Some(t),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-        Err(e) => return Err(e).with_context(|| file.display().to_string()),
-    };
+    let old = read_existing(file)?;
     let new = splice(file, old.as_deref(), key, body)?;
     let name = file
         .file_name()
@@ -329,6 +340,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("unpaired or out of order"), "{e}");
+    }
+
+    #[test]
+    fn check_section_refuses_before_a_run_what_writing_would_refuse() {
+        let dir = std::env::temp_dir().join(format!("dnr-md-check-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("page.md");
+        check_section(&f, "k").unwrap(); // no file yet: it will be created
+        std::fs::write(&f, "<!-- BEGIN other -->\n<!-- END other -->\n").unwrap();
+        assert!(check_section(&f, "k").is_err());
+        check_section(&f, "other").unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

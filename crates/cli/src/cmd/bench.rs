@@ -13,7 +13,7 @@ use clap::{Args as ClapArgs, Subcommand};
 use dnr_runtime::camera::Camera;
 use dnr_runtime::renderer::Renderer;
 
-use crate::markdown::{write_section, Align, Provenance, Table};
+use crate::markdown::{check_section, write_section, Align, Provenance, Table};
 
 /// Benchmarks (time always reported with what it buys; see README "Benchmarks").
 #[derive(ClapArgs)]
@@ -275,6 +275,9 @@ fn train(
     if pairs > 0 && peer.is_none() {
         bail!("--pairs needs --torch (the Python to time PyTorch with) and --peer");
     }
+    if let Some(p) = markdown {
+        check_section(p, super::bench_tables::TRAIN_SECTION)?;
+    }
     // Taken before the run: the load average then says whether the machine was shared.
     let provenance = Provenance::now();
     let report = dnr_bake::bench::run_standard(reps);
@@ -400,6 +403,9 @@ fn render(
     against: &[PathBuf],
     markdown: Option<&Path>,
 ) -> Result<ExitCode> {
+    if let Some(p) = markdown {
+        check_section(p, &super::bench_tables::render_section(&file_name(asset)))?;
+    }
     let provenance = Provenance::now();
     let r = Renderer::from_path(asset).with_context(|| asset.display().to_string())?;
     // The same renderer evaluating every U-Net position (no receptive-field skipping).
