@@ -4,7 +4,8 @@
 # Installs what the tests need beyond cargo, idempotently, under .tools/ (gitignored):
 #   - the Khronos glTF-Validator (npm `gltf-validator`),
 #   - the reference OpenEXR library (PyPI `OpenEXR`) and `jsonschema` for the spec examples.
-# Then runs the Rust tests and the cross-implementation checks on samples/.
+# Then runs the Rust tests and the cross-implementation checks on samples/. The first step,
+# which needs only git, checks that no tracked file names an absolute path of a machine.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -12,6 +13,9 @@ tools=$root/.tools
 export CARGO_TERM_COLOR=never
 
 step() { printf '\n== %s\n' "$*"; }
+
+step "no absolute machine paths in tracked files"
+bash tests/scripts/check_machine_paths.sh
 
 step "tools"
 if [ ! -f "$tools/node/node_modules/gltf-validator/package.json" ]; then

@@ -1,7 +1,9 @@
-//! The bodies of the `cargo fuzz` targets in `fuzz/`, kept here so that stable `cargo test`
-//! replays the committed corpus and every regression file through exactly the same code
-//! (`tests/fuzz_replay.rs`). Each body must return normally for every input: errors are
-//! fine, panics and unbounded allocations are the bugs the fuzzers look for.
+//! The bodies of the `cargo fuzz` targets, shared with stable `cargo test`.
+//!
+//! The targets in `fuzz/` call these bodies, kept here so that stable `cargo test` replays the
+//! committed corpus and every regression file through exactly the same code
+//! (`tests/fuzz_replay.rs`). Each body must return normally for every input: errors are fine,
+//! panics and unbounded allocations are the bugs the fuzzers look for.
 
 use std::path::Path;
 

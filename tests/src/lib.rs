@@ -1,5 +1,8 @@
 //! Helpers shared by the conformance and fuzz-smoke tests: where the samples are, what
 //! each must produce, and how to run the `dnr` binary.
+//!
+//! Test-only (`publish = false`): it depends on `dnr-format` and `dnr-bake`, and no product
+//! crate may depend on it.
 #![forbid(unsafe_code)]
 
 pub mod fuzz_targets;

@@ -16,8 +16,9 @@ static ALLOC: dnr_runtime::alloc::LineAligned = dnr_runtime::alloc::LineAligned;
 /// Train a neural texture and deferred neural renderer from posed photographs and write one
 /// self-contained glTF asset (EXT_deferred_neural_rendering, with a plain fallback material).
 ///
-/// CAPTURE is a folder in the NeRF `transforms.json` convention (see
-/// shared/capture-format.md): images, camera poses and a proxy mesh with UVs.
+/// CAPTURE is a folder in the NeRF `transforms.json` convention: images, camera poses and a
+/// proxy mesh with UVs. docs/capture-format.md in the dnr repository lists every key read,
+/// the defaults, the limits (--limit) and the errors.
 ///
 /// Examples:
 ///   dnr-bake samples/capture -o sample.glb --preset fast

@@ -1,7 +1,13 @@
-//! `dnr`: validate, inspect (and later render, evaluate, benchmark) `EXT_deferred_neural_rendering` assets.
+//! `dnr`: validate, inspect, render, evaluate and benchmark `EXT_deferred_neural_rendering`
+//! assets.
+//!
+//! The top of the stack: it may use every crate of the workspace (`dnr-format`,
+//! `dnr-runtime`, `dnr-bake`), and no crate may depend on it. Errors are `anyhow` here, typed
+//! in the libraries.
 #![forbid(unsafe_code)]
 
 mod cmd;
+mod markdown;
 
 /// Large buffers (texture levels, optimiser moments, feature planes) on cache-line
 /// boundaries: see `dnr_runtime::alloc`.

@@ -1,8 +1,47 @@
 //! `dnr-format`: the data model, codecs and validator of the `EXT_deferred_neural_rendering`
 //! glTF extension (see `spec/EXT_deferred_neural_rendering/`).
 //!
-//! Must not depend on rendering or training code; it is the one crate every reader and writer
-//! of the format shares.
+//! Must not depend on rendering or training code (`dnr-runtime`, `dnr-bake`), nor on anything
+//! heavier than the codecs the format itself needs (glTF JSON, OpenEXR, half floats, CRC-32,
+//! PNG for the fallback image); it is the one crate every reader and writer of the format
+//! shares.
+//!
+//! Validate, read and write an asset:
+//!
+//! ```
+//! use dnr_format::{read_asset, validate_file, write_asset, Limits, Severity};
+//!
+//! // A conformance sample of the repository: an `mlp` renderer over a 2-level texture.
+//! let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../samples/valid/mlp_f16_2levels.glb");
+//!
+//! // Every problem in one pass, each with a stable code, a severity and a JSON pointer
+//! // (what `dnr validate` prints). A file that cannot be read at all is an `Err`.
+//! let report = validate_file(std::path::Path::new(path), &Limits::default())?;
+//! for issue in &report.issues {
+//!     println!("{:?} {} at {}: {}", issue.severity, issue.code, issue.pointer, issue.message);
+//! }
+//! assert!(!report.has_errors() && report.count(Severity::Warning) == 0);
+//!
+//! // Read: texture levels decoded to f32 (texel-interleaved, row 0 at the top) and weight
+//! // tensors to f32, each checked against its declared shape, CRC-32 and the limits.
+//! let asset = read_asset(path)?;
+//! let texture = &asset.textures[0];
+//! let level0 = &texture.levels[0];
+//! assert_eq!(level0.data.len(), (level0.width * level0.height * texture.channels) as usize);
+//! let renderer = &asset.renderers[0];
+//! println!("{:?} renderer, {} parameters", renderer.spec.architecture, renderer.parameter_count());
+//!
+//! // Write: to a temporary file beside the target, then renamed over it (`.gltf` writes
+//! // JSON with embedded buffers, anything else GLB). A valid asset round-trips byte for byte.
+//! let dir = tempfile::tempdir()?;
+//! let copy = dir.path().join("copy.glb");
+//! write_asset(&copy, &asset)?;
+//! assert_eq!(std::fs::read(&copy)?, std::fs::read(path)?);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! To make a new asset, fill an [`AssetBuilder`] (textures, renderers, meshes, bindings) and
+//! write what [`AssetBuilder::build`] returns.
 //!
 //! Two layers, as in `exr`:
 //! - high: [`read_asset`], [`read_asset_from_slice`], [`write_asset`], [`AssetBuilder`],

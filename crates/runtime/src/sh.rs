@@ -1,7 +1,8 @@
-//! Real spherical harmonics for view-dependent features (DESIGN.md "View dependence"):
-//! degree 0..=3 in the KHR_gaussian_splatting / 3DGS order and signs. Channel
-//! `first_channel + j` of the sampled features is multiplied by `Y_j(d)`, with `d` the unit
-//! eye-to-surface direction in the primitive's local space.
+//! Real spherical harmonics for view-dependent features.
+//!
+//! As DESIGN.md "View dependence" defines them: degree 0..=3 in the KHR_gaussian_splatting / 3DGS
+//! order and signs. Channel `first_channel + j` of the sampled features is multiplied by `Y_j(d)`,
+//! with `d` the unit eye-to-surface direction in the primitive's local space.
 
 use rayon::prelude::*;
 

@@ -1,6 +1,8 @@
-//! Neural texture sampling: `F(u, v) = sum over levels of bilinear(level, u, v)` exactly as
-//! DESIGN.md "Neural texture" defines it (texel centres at half-integers, row 0 at v = 0,
-//! per-axis wrap of the integer tap indices, no mipmapping).
+//! Neural texture sampling: the levels' bilinear samples, summed.
+//!
+//! `F(u, v) = sum over levels of bilinear(level, u, v)` exactly as DESIGN.md "Neural texture"
+//! defines it (texel centres at half-integers, row 0 at v = 0, per-axis wrap of the integer tap
+//! indices, no mipmapping).
 //!
 //! [`taps`] is the single definition of the four taps and their weights; the forward
 //! sampler here and the baker's backward both call it, so they cannot drift apart.

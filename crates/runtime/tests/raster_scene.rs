@@ -332,12 +332,16 @@ fn texcoord_set_missing_keeps_the_primitive_without_uvs() {
 }
 
 /// Timing of a 512x512 G-buffer of the duck capture mesh from its first test pose. Needs the
-/// shared capture folder, hence ignored by default:
+/// development captures (`../shared/captures/duck` beside the repository, as the bake tests
+/// find them), hence ignored by default:
 /// `cargo test --release -p dnr-runtime --test raster_scene -- --ignored --nocapture`.
 #[test]
-#[ignore = "needs /work/shared/captures/duck; prints timings"]
+#[ignore = "needs the development capture ../shared/captures/duck; prints timings"]
 fn duck_raster_timing() {
-    let dir = Path::new("/work/shared/captures/duck");
+    let dir = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/captures/duck"
+    ));
     let scene = load_gltf(&dir.join("mesh.glb")).unwrap();
     assert_eq!(scene.triangle_count(), 4212);
     // First frame of transforms_test.json (row-major camera-to-world).

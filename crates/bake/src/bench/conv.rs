@@ -1,6 +1,8 @@
-//! The U-Net's convolutions alone, forward and backward, at the shapes a training step runs
-//! them: what "convolution forward and backward as a fraction of the sgemm peak" measures,
-//! without the norms, activations, losses and optimiser that the "train" row also times.
+//! The U-Net's convolutions alone, forward and backward (the "conv fwd+bwd" rows).
+//!
+//! At the shapes a training step runs them: what "convolution forward and backward as a fraction of
+//! the sgemm peak" measures, without the norms, activations, losses and optimiser that the "train"
+//! row also times.
 
 use super::{bench_params, random_tensor, time_min_median, time_steady, BenchRow};
 use crate::kernels::conv::{conv_backward, conv_forward_act};
@@ -115,7 +117,8 @@ fn layer_macs(l: &Layer) -> u64 {
 }
 
 /// Every convolution of the U-Net of `widths` at a `size` crop, layer by layer on random
-/// operands (see [`run_layer`]). FLOPs: 3x the forward's, as for the "train" row.
+/// operands: each layer's forward (layout gather, weight packing, GEMMs, bias), then its
+/// backward (weight, bias and input gradients). FLOPs: 3x the forward's, as for the "train" row.
 pub fn bench_conv_layers(widths: &[usize], size: usize, reps: usize) -> BenchRow {
     let p = bench_params(widths);
     let mut r = ChaCha8Rng::seed_from_u64(5);

@@ -1,6 +1,7 @@
-//! U-Net training-step and inference benchmarks (what `dnr bench train` / `dnr bench render`
-//! print): min-of-reps wall time, conv FLOPs per step and the achieved rate as a fraction of an
-//! sgemm peak measured in the same run with the same GEMM.
+//! The measurements behind `dnr bench train` and `dnr bench render`.
+//!
+//! U-Net training-step and inference benchmarks: min-of-reps wall time, conv FLOPs per step and the
+//! achieved rate as a fraction of an sgemm peak measured in the same run with the same GEMM.
 
 use crate::kernels::adam::{Adam, AdamConfig};
 use crate::kernels::loss::l1_loss;
@@ -72,6 +73,11 @@ pub fn time_steady(reps: usize, warm: bool, mut f: impl FnMut()) -> (f64, f64) {
     });
     t.sort_by(f64::total_cmp);
     (t[0], t[t.len() / 2])
+}
+
+/// Worker threads of the global pool, which the benchmarks (and the runtime) run on.
+pub fn worker_threads() -> usize {
+    rayon::current_num_threads()
 }
 
 /// GFLOP/s of a square 1024 sgemm with [`gemm_nn`] (best of `reps`).
@@ -311,7 +317,7 @@ pub fn run_standard(reps: usize) -> BenchReport {
         peak_gflops: before.0.max(after.0),
         fma_peak_gflops: before.1.max(after.1),
         simd: simd_level(),
-        threads: rayon::current_num_threads(),
+        threads: worker_threads(),
         rows,
         conv_layers,
     }

@@ -1,6 +1,8 @@
-//! The machine's multiply-add peak: independent FMA chains on every worker, at the widest
-//! vectors the kernels use. The sgemm figure says how far the convolutions are from our own
-//! best GEMM; this one says how far that GEMM is from the hardware.
+//! The machine's multiply-add (FMA) peak, measured on every worker.
+//!
+//! Independent FMA chains on every worker, at the widest vectors the kernels use. The sgemm figure
+//! says how far the convolutions are from our own best GEMM; this one says how far that GEMM is
+//! from the hardware.
 
 use super::time_min_median;
 use dnr_runtime::nn::gemm::{simd_level, SimdLevel};

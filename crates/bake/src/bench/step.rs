@@ -1,6 +1,8 @@
-//! The whole training step as the baker runs it (texture sampling, SH, U-Net forward and
-//! backward, losses, texture scatter, sparse Adam on texels, Adam on weights), on synthetic
-//! views of the size asked: what `dnr bench train` times against PyTorch's same step.
+//! The baker's whole training step on synthetic views (the "step" rows).
+//!
+//! The step as the baker runs it (texture sampling, SH, U-Net forward and backward, losses, texture
+//! scatter, sparse Adam on texels, Adam on weights), on synthetic views of the size asked: what
+//! `dnr bench train` times against PyTorch's same step.
 
 use dnr_runtime::gbuffer::GBuffer;
 use rand::{Rng, SeedableRng};
@@ -12,7 +14,7 @@ use crate::train::views::View;
 use crate::train::{PhaseSeconds, Trainer};
 
 /// A synthetic view shaped like a real one, mirroring `synthetic_inputs` of the PyTorch
-/// reference (shared/peers/dnr_torch.py) so `dnr bench train --torch` compares like with like:
+/// reference (`dnr_torch.py`) so `dnr bench train --torch` compares like with like:
 /// with `x, y` the pixel's position in [0, 1] (`linspace`, ends included) and a random phase
 /// `ph`, a smooth, slightly warped uv field covering about 80% of the texture
 /// (`u = 0.1 + 0.8 x + 0.03 sin(6.28 (2 y) + ph)`,

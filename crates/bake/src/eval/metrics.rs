@@ -1,16 +1,18 @@
-//! Image error metrics in the capture format's convention (`capture-format.md`): images are
-//! compared in sRGB 8-bit space; PSNR over the full frame composited on white; MSE on [0,255]
-//! colour values over the object's pixels; SSIM (Wang et al. 2004, 11x11 Gaussian window,
-//! sigma 1.5, K1 0.01, K2 0.03) averaged over the RGB channels.
+//! Image error metrics: PSNR, object MSE and SSIM.
+//!
+//! In the capture format's convention (`docs/capture-format.md`): images are compared in sRGB 8-bit
+//! space; PSNR over the full frame composited on white; MSE on [0, 255] colour values over the
+//! object's pixels; SSIM (Wang et al. 2004, 11x11 Gaussian window, sigma 1.5, K1 0.01, K2 0.03)
+//! averaged over the RGB channels.
 
-/// An RGBA image with straight alpha, values in [0,1], row-major HWC.
+/// An RGBA image with straight alpha, values in [0, 1], row-major HWC.
 #[derive(Clone, Debug)]
 pub struct Rgba<'a> {
     /// Width in pixels.
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// `width * height * 4` values in [0,1], sRGB-encoded colour, straight alpha.
+    /// `width * height * 4` values in [0, 1], sRGB-encoded colour, straight alpha.
     pub data: &'a [f32],
 }
 
@@ -19,7 +21,7 @@ pub struct Rgba<'a> {
 pub struct ViewError {
     /// PSNR in dB over the full frame composited on white (8-bit quantised).
     pub psnr: f64,
-    /// MSE on [0,255] over the object pixels (ground-truth alpha > 0.5), composited on white.
+    /// MSE on [0, 255] over the object pixels (ground-truth alpha > 0.5), composited on white.
     pub mse_obj: f64,
     /// Number of object pixels the MSE was taken over.
     pub obj_pixels: usize,
@@ -98,7 +100,7 @@ pub fn ssim_rgb_u8(a: &[u8], b: &[u8], w: usize, h: usize) -> f64 {
     total / 3.0
 }
 
-/// SSIM of two planes with values on [0,255]; Gaussian window with "valid" borders
+/// SSIM of two planes with values on [0, 255]; Gaussian window with "valid" borders
 /// (the window is renormalised where it leaves the image, so tiny images still work).
 fn ssim_plane(a: &[f64], b: &[f64], w: usize, h: usize) -> f64 {
     const R: isize = 5;

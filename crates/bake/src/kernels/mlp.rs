@@ -1,7 +1,8 @@
-//! The per-pixel MLP renderer as a training graph: weights with gradient accumulators, and a
-//! frame-level forward/backward that evaluates covered pixels only (background gets no network
-//! work). Same architecture, weight names and forward arithmetic as
-//! `dnr_runtime::network::mlp`, so what is trained is what the runtime draws.
+//! The per-pixel MLP renderer as a training graph.
+//!
+//! Weights with gradient accumulators, and a frame-level forward/backward that evaluates covered
+//! pixels only (background gets no network work). Same architecture, weight names and forward
+//! arithmetic as `dnr_runtime::network::mlp`, so what is trained is what the runtime draws.
 
 use super::dense::{mlp_backward, mlp_forward, MlpActs};
 use dnr_runtime::network::mlp::MlpParams;

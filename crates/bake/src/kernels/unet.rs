@@ -1,6 +1,8 @@
-//! The U-Net renderer as a training graph: forward that keeps every activation backward needs,
-//! backward that accumulates the gradients of all weights and returns the gradient of the
-//! input feature image. Same architecture and weight names as `dnr_runtime::network::unet`.
+//! The U-Net renderer as a training graph.
+//!
+//! Forward that keeps every activation backward needs, backward that accumulates the gradients of
+//! all weights and returns the gradient of the input feature image. Same architecture and weight
+//! names as `dnr_runtime::network::unet`.
 
 use super::activation::{leaky_relu_backward, tanh_backward};
 use super::concat::concat_backward;

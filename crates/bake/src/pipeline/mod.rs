@@ -51,7 +51,7 @@ pub struct BakeOptions {
 pub struct Summary {
     /// Held-out PSNR (dB) of the exported asset rendered by the runtime.
     pub test_psnr: f64,
-    /// Held-out object MSE on [0,255].
+    /// Held-out object MSE on [0, 255].
     pub test_mse: f64,
     /// Held-out SSIM.
     pub test_ssim: f64,

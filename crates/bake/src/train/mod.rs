@@ -89,7 +89,7 @@ pub struct Record {
     pub train_loss: f64,
     /// Mean held-out PSNR (dB), full frame on white.
     pub test_psnr: f64,
-    /// Mean held-out MSE on [0,255] over object pixels.
+    /// Mean held-out MSE on [0, 255] over object pixels.
     pub test_mse: f64,
     /// Mean PSNR (dB) of the validation views (training views held out of training), the
     /// figure best-state selection reads; NaN without validation views.

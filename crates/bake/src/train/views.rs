@@ -16,7 +16,7 @@ pub struct View {
     /// Rasterised proxy: uv, coverage, view directions (the same rasteriser the runtime draws
     /// with, so training sees exactly what rendering will).
     pub gbuf: GBuffer,
-    /// Target colour composited on white, planar (3 x H x W), sRGB-encoded [0,1].
+    /// Target colour composited on white, planar (3 x H x W), sRGB-encoded [0, 1].
     pub target: Vec<f32>,
     /// Target alpha (the capture's mask), H x W.
     pub alpha: Vec<f32>,

@@ -1,15 +1,19 @@
+//! `dnr bench train | render | bake`: the benchmarks.
+//!
 //! `dnr bench train`: the training step and U-Net inference against the sgemm peak measured in
 //! the same run, and (with `--torch`) PyTorch's same step timed in the same run.
 //! `dnr bench render ASSET`: ms per frame of an asset at several sizes.
 //! `dnr bench bake CAPTURE...`: held-out error against bake seconds (see [`super::bench_bake`]).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args as ClapArgs, Subcommand};
 use dnr_runtime::camera::Camera;
 use dnr_runtime::renderer::Renderer;
+
+use crate::markdown::{check_section, write_section, Align, Provenance, Table};
 
 /// Benchmarks (time always reported with what it buys; see README "Benchmarks").
 #[derive(ClapArgs)]
@@ -28,16 +32,26 @@ enum What {
         /// warm-up, as the PyTorch reference does; the minimum and median are reported).
         #[arg(long, default_value_t = 5)]
         reps: usize,
-        /// Python with torch installed: also time the PyTorch reference
-        /// (shared/peers/dnr_torch.py bench) in the same run and print the ratio.
-        #[arg(long)]
+        /// Python with torch installed: also time the PyTorch reference (--peer) in the same
+        /// run and print the ratio.
+        #[arg(long, requires = "peer")]
         torch: Option<PathBuf>,
-        /// The PyTorch reference script.
-        #[arg(long, default_value = "../shared/peers/dnr_torch.py")]
-        peer: PathBuf,
+        /// The PyTorch reference script run with --torch: the paper's model in PyTorch, timed
+        /// by its `bench` subcommand (`dnr_torch.py`; not part of this repository).
+        #[arg(long, requires = "torch")]
+        peer: Option<PathBuf>,
         /// Write the measurements as JSON.
         #[arg(long)]
         json: Option<PathBuf>,
+        /// Write the tables of docs/benchmarks.md's training section as Markdown. A FILE
+        /// holding the section's markers (`<!-- BEGIN dnr bench train -->` ... `END`) gets
+        /// that section replaced and the rest kept; a file without markers is overwritten.
+        #[arg(long, value_name = "FILE")]
+        markdown: Option<PathBuf>,
+        /// Measure nothing: render the tables of a run saved with --json (to stdout, or to
+        /// --markdown).
+        #[arg(long, value_name = "RUN.json", conflicts_with_all = ["torch", "json", "pairs"])]
+        from_json: Option<PathBuf>,
         /// With --torch, also time the CPU-sized U-Net's step at 128 and 256 this many times
         /// alternately, ours then PyTorch's, and report each pair's ratio and their median: on
         /// a shared host the load drifts over the minutes between the main table's rows, and
@@ -74,6 +88,11 @@ enum What {
         /// ASSET's renders against each reference's, from four cameras around the object.
         #[arg(long, value_name = "REFERENCE")]
         against: Vec<PathBuf>,
+        /// Also write the tables as Markdown, as section `dnr bench render NAME` (NAME: the
+        /// asset's file name): a FILE holding that section's markers gets it replaced and
+        /// the rest kept; a file without markers is overwritten.
+        #[arg(long, value_name = "FILE")]
+        markdown: Option<PathBuf>,
     },
 }
 
@@ -86,25 +105,32 @@ pub fn run(args: &Args) -> Result<ExitCode> {
             peer,
             json,
             pairs,
-        } => train(*reps, torch.as_ref(), peer, json.as_ref(), *pairs),
+            markdown,
+            from_json,
+        } => match from_json {
+            Some(run) => train_from_json(run, markdown.as_deref()),
+            None => {
+                let peer = torch.as_deref().zip(peer.as_deref());
+                train(*reps, peer, json.as_ref(), *pairs, markdown.as_deref())
+            }
+        },
         What::Render {
             asset,
             sizes,
             reps,
             against,
-        } => render(asset, sizes, *reps, against),
+            markdown,
+        } => render(asset, sizes, *reps, against, markdown.as_deref()),
         What::Bake(a) => super::bench_bake::main(a),
     }
 }
 
+/// The PyTorch reference: the Python to run it with, and the script.
+type Peer<'a> = (&'a Path, &'a Path);
+
 /// Runs the PyTorch reference's `bench` with `args` (and our thread count) and returns its
 /// JSON report.
-fn run_peer(
-    py: &PathBuf,
-    peer: &PathBuf,
-    args: &[&str],
-    threads: usize,
-) -> Result<serde_json::Value> {
+fn run_peer((py, peer): Peer<'_>, args: &[&str], threads: usize) -> Result<serde_json::Value> {
     let tmp = std::env::temp_dir().join(format!("dnr-torch-bench-{}.json", std::process::id()));
     let status = Command::new(py)
         .arg(peer)
@@ -135,13 +161,7 @@ fn peer_step(t: &serde_json::Value, size: usize) -> Option<(f64, f64)> {
 
 /// `--pairs`: the CPU-sized step at 128 and 256, ours then PyTorch's, `pairs` times; prints
 /// each pair and the median ratio per size, returns them as JSON.
-fn paired(
-    py: &PathBuf,
-    peer: &PathBuf,
-    reps: usize,
-    threads: usize,
-    pairs: usize,
-) -> Result<serde_json::Value> {
+fn paired(peer: Peer<'_>, reps: usize, threads: usize, pairs: usize) -> Result<serde_json::Value> {
     let widths: Vec<u32> = dnr_bake::bench::CPU_WIDTHS
         .iter()
         .map(|&w| w as u32)
@@ -165,7 +185,7 @@ fn paired(
                 "--infer-sizes",
                 "64",
             ];
-            let t = run_peer(py, peer, &args, threads)?;
+            let t = run_peer(peer, &args, threads)?;
             let (t_min, t_med) = peer_step(&t, size).context("PyTorch report has no step row")?;
             let (r_min, r_med) = (t_min / d_min, t_med / d_med);
             println!(
@@ -197,17 +217,23 @@ fn paired(
 
 fn train(
     reps: usize,
-    torch: Option<&PathBuf>,
-    peer: &PathBuf,
+    peer: Option<Peer<'_>>,
     json: Option<&PathBuf>,
     pairs: usize,
+    markdown: Option<&Path>,
 ) -> Result<ExitCode> {
-    if pairs > 0 && torch.is_none() {
-        bail!("--pairs needs --torch (the Python to time PyTorch with)");
+    if pairs > 0 && peer.is_none() {
+        bail!("--pairs needs --torch (the Python to time PyTorch with) and --peer");
     }
+    if let Some(p) = markdown {
+        check_section(p, super::bench_tables::TRAIN_SECTION)?;
+    }
+    // Taken before the run: the load average then says whether the machine was shared.
+    let provenance = Provenance::now();
     let report = dnr_bake::bench::run_standard(reps);
     println!("{report}");
     let mut out = serde_json::json!({
+        "provenance": provenance,
         "sgemmPeakGflops": report.peak_gflops,
         "fmaPeakGflops": report.fma_peak_gflops,
         "threads": report.threads,
@@ -222,7 +248,7 @@ fn train(
             "widths": dnr_bake::bench::CPU_WIDTHS, "size": size, "layers": layers,
         })).collect::<Vec<_>>(),
     });
-    if let Some(py) = torch {
+    if let Some(peer) = peer {
         let args = [
             "--widths",
             "0.25",
@@ -234,7 +260,7 @@ fn train(
             "256",
             "512",
         ];
-        let t = run_peer(py, peer, &args, report.threads)?;
+        let t = run_peer(peer, &args, report.threads)?;
         println!(
             "PyTorch {} (same run, {} threads):",
             t["torch"], t["threads"]
@@ -281,17 +307,56 @@ fn train(
         }
         out["torch"] = serde_json::json!({"version": t["torch"], "comparisons": cmp});
         if pairs > 0 {
-            out["torch"]["pairs"] = paired(py, peer, reps, report.threads, pairs)?;
+            out["torch"]["pairs"] = paired(peer, reps, report.threads, pairs)?;
         }
     }
     if let Some(p) = json {
         std::fs::write(p, serde_json::to_string_pretty(&out)?)
             .with_context(|| p.display().to_string())?;
     }
+    if let Some(p) = markdown {
+        let body = super::bench_tables::train(&out).context("the run's tables")?;
+        write_section(p, super::bench_tables::TRAIN_SECTION, &body)?;
+        eprintln!("wrote the tables to {}", p.display());
+    }
     Ok(ExitCode::SUCCESS)
 }
 
-fn render(asset: &PathBuf, sizes: &[u32], reps: usize, against: &[PathBuf]) -> Result<ExitCode> {
+/// `--from-json`: the tables of a saved run, printed or written as a section.
+fn train_from_json(run: &Path, markdown: Option<&Path>) -> Result<ExitCode> {
+    let text = std::fs::read_to_string(run).with_context(|| run.display().to_string())?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", run.display()))?;
+    let body = super::bench_tables::train(&v).with_context(|| run.display().to_string())?;
+    match markdown {
+        Some(p) => {
+            write_section(p, super::bench_tables::TRAIN_SECTION, &body)?;
+            eprintln!("wrote the tables of {} to {}", run.display(), p.display());
+        }
+        None => print!("{body}"),
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A path's file name for tables and section names (assets live anywhere; the name is what
+/// a reader recognises).
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| p.display().to_string())
+}
+
+fn render(
+    asset: &PathBuf,
+    sizes: &[u32],
+    reps: usize,
+    against: &[PathBuf],
+    markdown: Option<&Path>,
+) -> Result<ExitCode> {
+    if let Some(p) = markdown {
+        check_section(p, &super::bench_tables::render_section(&file_name(asset)))?;
+    }
+    let provenance = Provenance::now();
     let r = Renderer::from_path(asset).with_context(|| asset.display().to_string())?;
     // The same renderer evaluating every U-Net position (no receptive-field skipping).
     let mut full = r.clone();
@@ -301,8 +366,12 @@ fn render(asset: &PathBuf, sizes: &[u32], reps: usize, against: &[PathBuf]) -> R
         let eye = glam::Vec3::new(3.4 * a.sin(), 1.2, 3.4 * a.cos());
         Camera::look_at(eye, glam::Vec3::ZERO, 40.0, s, s)
     };
-    println!("| size | ms per frame (min) | ms (median) | ms without skipping (min) |");
-    println!("| ---: | ---: | ---: | ---: |");
+    let mut times = Table::new(&[
+        ("size", Align::Right),
+        ("ms per frame (min)", Align::Right),
+        ("ms (median)", Align::Right),
+        ("ms without skipping (min)", Align::Right),
+    ]);
     for &s in sizes {
         let cam = camera(s, 0);
         // A frame that fails (a bad size, a network error) is reported here, before timing.
@@ -318,18 +387,24 @@ fn render(asset: &PathBuf, sizes: &[u32], reps: usize, against: &[PathBuf]) -> R
         let (full_min, _) = dnr_bake::bench::time_min_median(reps, || {
             std::hint::black_box(full.render(&cam, s, s).expect("render"));
         });
-        println!(
-            "| {s} | {:.1} | {:.1} | {:.1} |",
-            1e3 * min,
-            1e3 * med,
-            1e3 * full_min
-        );
+        times.row(vec![
+            s.to_string(),
+            format!("{:.1}", 1e3 * min),
+            format!("{:.1}", 1e3 * med),
+            format!("{:.1}", 1e3 * full_min),
+        ]);
     }
-    if !against.is_empty() {
-        println!();
-        println!("| reference | size | PSNR of ASSET against it (dB, float, on white) | max abs difference | reference ms (min) |");
-        println!("| --- | ---: | ---: | ---: | ---: |");
-    }
+    print!("{}", times.render());
+    let mut errors = Table::new(&[
+        ("reference", Align::Left),
+        ("size", Align::Right),
+        (
+            "PSNR of ASSET against it (dB, float, on white)",
+            Align::Right,
+        ),
+        ("max abs difference", Align::Right),
+        ("reference ms (min)", Align::Right),
+    ]);
     for reference in against {
         let q = Renderer::from_path(reference).with_context(|| reference.display().to_string())?;
         for &s in sizes {
@@ -358,12 +433,41 @@ fn render(asset: &PathBuf, sizes: &[u32], reps: usize, against: &[PathBuf]) -> R
                 // Rendered with this camera above already, so an error cannot first appear here.
                 std::hint::black_box(q.render(&cam, s, s).ok());
             });
-            println!(
-                "| {} | {s} | {psnr:.2} | {max_abs:.2e} | {:.1} |",
-                reference.display(),
-                1e3 * q_min
-            );
+            errors.row(vec![
+                file_name(reference),
+                s.to_string(),
+                format!("{psnr:.2}"),
+                format!("{max_abs:.2e}"),
+                format!("{:.1}", 1e3 * q_min),
+            ]);
         }
+    }
+    if !errors.is_empty() {
+        println!();
+        print!("{}", errors.render());
+    }
+    if let Some(p) = markdown {
+        let bytes = std::fs::metadata(asset)
+            .with_context(|| asset.display().to_string())?
+            .len();
+        let archs: Vec<&str> = (0..r.renderer_count())
+            .filter_map(|i| r.architecture(i))
+            .collect();
+        let name = file_name(asset);
+        let body = super::bench_tables::render(
+            &provenance,
+            &super::bench_tables::RenderRun {
+                asset: &name,
+                bytes,
+                architectures: &archs,
+                reps,
+                threads: dnr_bake::bench::worker_threads(),
+            },
+            &times,
+            &errors,
+        );
+        write_section(p, &super::bench_tables::render_section(&name), &body)?;
+        eprintln!("wrote the tables to {}", p.display());
     }
     Ok(ExitCode::SUCCESS)
 }

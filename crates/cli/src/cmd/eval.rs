@@ -1,7 +1,8 @@
-//! `dnr eval ASSET CAPTURE [--split test|train|all] [--json FILE] [--save-images DIR]`:
-//! renders the capture's views from the exported asset with the CPU runtime and reports
-//! PSNR (full frame on white), SSIM and object MSE per view and on average
-//! (`dnr_bake::eval::evaluate`).
+//! `dnr eval`: an asset's error against a capture's photographs.
+//!
+//! `dnr eval ASSET CAPTURE [--split test|train|all] [--json FILE] [--save-images DIR]`: renders the
+//! capture's views from the exported asset with the CPU runtime and reports PSNR (full frame on
+//! white), SSIM and object MSE per view and on average (`dnr_bake::eval::evaluate`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;

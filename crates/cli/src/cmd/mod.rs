@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bench_bake;
+pub mod bench_tables;
 pub mod inspect;
 pub mod validate;
 

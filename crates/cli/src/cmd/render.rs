@@ -1,3 +1,5 @@
+//! `dnr render`: an asset drawn by the CPU runtime to PNG files.
+//!
 //! `dnr render ASSET (--capture DIR [--split test|train|all] | --look-at EX,EY,EZ,TX,TY,TZ
 //! [--fov DEG] [--size WxH]) -o OUT [--json]`: draws an asset with the CPU runtime to
 //! 8-bit RGBA PNGs (straight alpha, sRGB-encoded colour, transparent background).

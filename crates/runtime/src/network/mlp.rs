@@ -1,6 +1,7 @@
-//! The per-pixel MLP renderer (`architecture: "mlp"`): dense layers `layers.{i}.weight`
-//! `[out, in]`, `layers.{i}.bias` `[out]`, LeakyReLU(0.2) after every layer but the last,
-//! tanh after the last; evaluated on covered pixels only.
+//! The per-pixel MLP renderer (`architecture: "mlp"`).
+//!
+//! Dense layers `layers.{i}.weight` `[out, in]`, `layers.{i}.bias` `[out]`, LeakyReLU(0.2) after
+//! every layer but the last, tanh after the last; evaluated on covered pixels only.
 
 use super::{check_no_extra, fetch_tensors, map_lookup, NetworkError, TensorRef};
 use crate::nn::activation::{leaky_relu, tanh, LEAKY_SLOPE};

@@ -1,6 +1,7 @@
-//! Renderer networks built from the [`crate::nn`] layers: the U-Net deferred neural renderer
-//! and the per-pixel MLP, with weight validation against the names and shapes of
-//! `docs/DESIGN.md`.
+//! Renderer networks: the U-Net and the per-pixel MLP.
+//!
+//! Built from the [`crate::nn`] layers: the U-Net deferred neural renderer and the per-pixel MLP,
+//! with weight validation against the names and shapes of `docs/DESIGN.md`.
 
 pub mod mlp;
 pub mod unet;

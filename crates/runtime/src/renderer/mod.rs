@@ -326,7 +326,86 @@ impl Renderer {
     /// primitive has none: the feature is then 0); `view_dir` is the unit eye-to-surface
     /// direction in the primitive's local space (only read where the neural texture has
     /// view dependence; non-finite is treated as `(0, 0, 0)`). Coverage is binary: any
-    /// non-zero value counts as covered.
+    /// non-zero value counts as covered. `tri` and `depth` are not read.
+    ///
+    /// A viewer with its own rasteriser draws [`Renderer::scene`]'s primitives, reads back
+    /// those four render targets and passes them here; the result is the neural layer, to
+    /// composite over the viewer's own image. Here a ray through each pixel centre stands in
+    /// for the viewer's GPU pass:
+    ///
+    /// ```
+    /// use dnr_runtime::{camera::Camera, gbuffer::GBuffer, renderer::Renderer};
+    /// use glam::Vec3;
+    ///
+    /// // A conformance sample of the repository: a unit quad with a `none` renderer.
+    /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../samples/valid/none_1level.glb");
+    /// let renderer = Renderer::from_path(path)?;
+    /// let (w, h) = (64, 48);
+    /// let camera = Camera::look_at(Vec3::new(0.3, 0.2, 2.5), Vec3::ZERO, 40.0, w, h);
+    ///
+    /// // The viewer's visibility pass: nearest hit per pixel centre.
+    /// let mut g = GBuffer::new(w as usize, h as usize);
+    /// for py in 0..h {
+    ///     for px in 0..w {
+    ///         // The ray through the pixel centre (the camera looks along -Z, +Y up).
+    ///         let d = Vec3::new(
+    ///             (px as f32 + 0.5 - camera.cx) / camera.fx,
+    ///             -(py as f32 + 0.5 - camera.cy) / camera.fy,
+    ///             -1.0,
+    ///         );
+    ///         let i = (py * w + px) as usize;
+    ///         for (index, p) in renderer.scene().primitives.iter().enumerate() {
+    ///             // In the primitive's local space, where view directions are given.
+    ///             let to_local = p.world.inverse();
+    ///             let eye = to_local.transform_point3(camera.eye());
+    ///             let dir = to_local.transform_vector3(camera.cam_to_world.transform_vector3(d));
+    ///             for (t, tri) in p.indices.chunks_exact(3).enumerate() {
+    ///                 let [a, b, c] = [0, 1, 2].map(|k| p.positions[tri[k] as usize]);
+    ///                 // Moller-Trumbore: barycentrics (b1, b2) and the ray parameter, which is
+    ///                 // the view-space depth because the camera-space ray has z = -1.
+    ///                 let (e1, e2, s) = (b - a, c - a, eye - a);
+    ///                 let (q, r) = (dir.cross(e2), s.cross(e1));
+    ///                 let det = e1.dot(q);
+    ///                 let (b1, b2, depth) = (s.dot(q) / det, dir.dot(r) / det, e2.dot(r) / det);
+    ///                 let inside = b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0;
+    ///                 if det.abs() < 1e-12 || !inside || depth <= 0.0 || depth >= g.depth[i] {
+    ///                     continue;
+    ///                 }
+    ///                 let uv = |k: usize| p.uvs[tri[k] as usize];
+    ///                 g.coverage[i] = 1.0;
+    ///                 g.prim[i] = index as u32; // index into renderer.scene().primitives
+    ///                 g.tri[i] = t as u32;
+    ///                 g.depth[i] = depth;
+    ///                 g.uv[i] = (uv(0) * (1.0 - b1 - b2) + uv(1) * b1 + uv(2) * b2).to_array();
+    ///                 g.view_dir[i] = (e1 * b1 + e2 * b2 - s).normalize().to_array();
+    ///             }
+    ///         }
+    ///     }
+    /// }
+    /// let layer = renderer.shade(&g)?;
+    ///
+    /// // The runtime's own rasteriser sees the same view. The layers agree but where the two
+    /// // passes round a UV differently (by 1e-4 or so) or disagree on an edge pixel.
+    /// let reference = renderer.render(&camera, w, h)?;
+    /// let agree = layer.data.chunks_exact(4).zip(reference.data.chunks_exact(4))
+    ///     .filter(|(a, b)| a.iter().zip(*b).all(|(x, y)| (x - y).abs() < 1e-2))
+    ///     .count();
+    /// assert!(agree as f32 >= 0.99 * (w * h) as f32, "{agree} of {} pixels agree", w * h);
+    /// assert!(g.coverage.iter().filter(|&&c| c > 0.0).count() > 100);
+    ///
+    /// // Composite over the viewer's (here white) background and save an 8-bit PNG.
+    /// let rgb = layer.over([1.0; 3]);
+    /// let rgba: Vec<u8> = rgb
+    ///     .chunks_exact(3)
+    ///     .flat_map(|p| [p[0], p[1], p[2], 1.0].map(dnr_runtime::renderer::quantize))
+    ///     .collect();
+    /// let png = dnr_format::asset::encode_png_rgba8(w, h, &rgba)?;
+    /// let dir = tempfile::tempdir()?;
+    /// std::fs::write(dir.path().join("composited.png"), png)?;
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    ///
+    /// The fields one by one, filled by hand:
     ///
     /// ```
     /// use dnr_format::model::{Architecture, DType, Renderer as RendererSpec};

@@ -83,7 +83,7 @@ pub struct Cell {
     pub psnr: f64,
     /// Held-out SSIM.
     pub ssim: f64,
-    /// Held-out MSE on [0,255] over object pixels.
+    /// Held-out MSE on [0, 255] over object pixels.
     pub mse: f64,
     /// Asset bytes (0 for the reference, which writes none).
     pub asset_bytes: u64,
