@@ -417,6 +417,78 @@ def uv_sphere(parts, centre, radius, segments, rings, bumps=None):
     parts.add(verts, faces, uvs)
 
 
+def bowl_shell(outer, inner, radius, thickness, theta_max_deg, rings, segments):
+    """A sphere cap about the south pole, up to polar angle theta_max, shelled inward.
+
+    `outer` gets the outside; `inner` the inside (facing the cavity) and the rim. Charts: the
+    outside and inside are azimuthal-equidistant disks (true scale along meridians), the rim a
+    strip cut into four pieces.
+    """
+    tmax = math.radians(theta_max_deg)
+
+    def point(r, th, ph):
+        return np.array([r * math.sin(th) * math.cos(ph), r * math.sin(th) * math.sin(ph), -r * math.cos(th)])
+
+    def orient(verts, face, uvs, want):
+        """Winds `face` so its normal points along `want`."""
+        p = [verts[i] for i in face]
+        n = np.cross(p[1] - p[0], p[2] - p[0]) if len(p) == 3 else np.cross(p[2] - p[0], p[3] - p[1])
+        return (face, uvs) if n.dot(want) > 0 else (face[::-1], uvs[::-1])
+
+    for parts, r, sign in ((outer, radius, 1.0), (inner, radius - thickness, -1.0)):
+        verts = [point(r, 0.0, 0.0)]
+        for k in range(1, rings + 1):
+            for j in range(segments):
+                verts.append(point(r, tmax * k / rings, 2 * math.pi * j / segments))
+
+        def vi(k, j):
+            return 1 + (k - 1) * segments + (j % segments)
+
+        def uv(k, j):
+            th, ph = tmax * k / rings, 2 * math.pi * j / segments
+            return (r * th * math.cos(ph), r * th * math.sin(ph))
+
+        faces, uvs = [], []
+        for j in range(segments):
+            f, u = orient(verts, (0, vi(1, j), vi(1, j + 1)), [(0.0, 0.0), uv(1, j), uv(1, j + 1)], sign * verts[vi(1, j)])
+            faces.append(f)
+            uvs.append(u)
+            for k in range(1, rings):
+                f, u = orient(
+                    verts,
+                    (vi(k, j), vi(k, j + 1), vi(k + 1, j + 1), vi(k + 1, j)),
+                    [uv(k, j), uv(k, j + 1), uv(k + 1, j + 1), uv(k + 1, j)],
+                    sign * verts[vi(k, j)],
+                )
+                faces.append(f)
+                uvs.append(u)
+        parts.add(verts, faces, uvs)
+
+    # Rim: quads from the outer to the inner top ring, facing along the meridian.
+    verts, faces, uvs = [], [], []
+    r_mid = (radius - thickness / 2) * math.sin(tmax)
+    for j in range(segments):
+        ph = 2 * math.pi * j / segments
+        verts += [point(radius, tmax, ph), point(radius - thickness, tmax, ph)]
+    pieces = 4
+    for j in range(segments):
+        pc = j * pieces // segments
+        j1 = (j + 1) % segments
+        u0, u1 = r_mid * 2 * math.pi * (j - pc * segments / pieces) / segments, r_mid * 2 * math.pi * (j + 1 - pc * segments / pieces) / segments
+        off = pc * 10.0  # pieces apart, so no two share a uv
+        ph = 2 * math.pi * (j + 0.5) / segments
+        want = np.array([math.cos(tmax) * math.cos(ph), math.cos(tmax) * math.sin(ph), math.sin(tmax)])
+        f, u = orient(
+            verts,
+            (2 * j, 2 * j1, 2 * j1 + 1, 2 * j + 1),
+            [(off + u0, 0.0), (off + u1, 0.0), (off + u1, thickness), (off + u0, thickness)],
+            want,
+        )
+        faces.append(f)
+        uvs.append(u)
+    inner.add(verts, faces, uvs)
+
+
 def join(objs, name):
     select_only(objs)
     bpy.ops.object.join()
@@ -922,25 +994,18 @@ def build_mixed():
     links.new(col, bsdf.inputs["Base Color"])
     set_bsdf(bsdf, roughness=0.55, specular=0.5)
 
-    # Bowl: the lower part of a sphere, shelled inward; outer shell terracotta, inner shell and rim glaze.
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.9, segments=96, ring_count=48)
-    bowl = bpy.context.view_layer.objects.active
-    bm = bmesh.new()
-    bm.from_mesh(bowl.data)
-    bmesh.ops.delete(bm, geom=[v for v in bm.verts if v.co.z > 0.25], context="VERTS")
-    bm.to_mesh(bowl.data)
-    bm.free()
-    bowl.data.materials.append(terracotta)
-    bowl.data.materials.append(glaze)
-    sol = bowl.modifiers.new("shell", "SOLIDIFY")
-    sol.thickness = 0.07
-    sol.offset = -1.0
-    sol.material_offset = 1
-    sol.material_offset_rim = 1
-    sol.use_rim = True
-    apply_modifiers(bowl)
+    # Bowl: a sphere cap shelled inward, built here rather than by the Solidify modifier, whose
+    # vertex positions vary in the last bit from run to run (and the uv layout with them).
+    parts_out, parts_in = Parts(), Parts()
+    bowl_shell(parts_out, parts_in, radius=0.9, thickness=0.07, theta_max_deg=105.0, rings=28, segments=96)
+    bowl = parts_out.object("bowl")
     transform(bowl, loc=(0, 0, 0.3))
-    shade(bowl, smooth_angle_deg=60)
+    set_material(bowl, terracotta)
+    shade(bowl)
+    glazed = parts_in.object("glazed")
+    transform(glazed, loc=(0, 0, 0.3))
+    set_material(glazed, glaze)
+    shade(glazed, smooth_angle_deg=60)
 
     bpy.ops.mesh.primitive_cylinder_add(radius=0.38, depth=0.16, vertices=64)
     foot = bpy.context.view_layer.objects.active
@@ -952,9 +1017,9 @@ def build_mixed():
     set_material(foot, terracotta)
     shade(foot, smooth_angle_deg=40)
 
-    bpy.ops.mesh.primitive_uv_sphere_add(radius=0.3, segments=64, ring_count=32)
-    ball = bpy.context.view_layer.objects.active
-    transform(ball, loc=(-0.2, 0.1, -0.2))
+    parts = Parts()
+    uv_sphere(parts, (-0.2, 0.1, -0.2), 0.3, 64, 32)
+    ball = parts.object("ball")
     set_material(ball, chrome)
     shade(ball)
 
@@ -968,9 +1033,11 @@ def build_mixed():
     set_material(die, maple)
     shade(die, smooth_angle_deg=40)
 
-    obj = join([bowl, foot, ball, die], "mixed")
-    return obj, smart_uv(obj), (
-        "A concave bowl (sphere cap shelled inward): diffuse terracotta outside with painted bands, glossy "
+    smart = smart_uv(foot)
+    assert smart_uv(die) == smart, "foot and die unwrapped differently: say so in the note"
+    obj = join([bowl, glazed, foot, ball, die], "mixed")
+    return obj, smart + " (foot, die); disk, strip and sphere charts (bowl, ball)", (
+        "A concave bowl (sphere cap shelled inward, 0.07 thick): diffuse terracotta outside with painted bands, glossy "
         "blue glaze inside and on the rim (roughness 0.07), holding a chrome ball (metallic, roughness 0.04) "
         "and a wooden die (diffuse, roughness 0.55), on a terracotta foot. Self-shadowing, inter-reflection "
         "and mirror-like reflections of the bowl in the ball."
