@@ -1311,6 +1311,16 @@ def main():
     argv = sys.argv[1:]
     ap = argparse.ArgumentParser(
         description="Render the dnr development set (posed-image captures) with Blender Cycles.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="""Writes OUT_DIR/NAME (transforms_train.json with the first half of the training views,
+transforms_test.json with every other test view, train/, test/, mesh.glb, mesh_coarse.glb,
+meta.json) and OUT_DIR/NAME-<train> (all views, the same images by relative path).
+Finished captures are skipped; an interrupted one resumes. See README.md next to this script.
+
+examples:
+  make_devset.py /data/devset                 # everything: 5 x (200 + 60) views at 256x256
+  make_devset.py /tmp/smoke --quick           # 8 + 4 views at 64x64, the same meshes
+  make_devset.py /data/devset --only thin     # one capture""",
     )
     ap.add_argument("out_dir", help="folder to write the captures into (one sub-folder per capture)")
     ap.add_argument("--quick", action="store_true", help="smoke test: 8 + 4 views at 64x64")
@@ -1321,6 +1331,8 @@ def main():
     args = ap.parse_args(argv)
     if args.quick:
         args.train, args.test, args.resolution = 8, 4, 64
+    if args.train < 2 or args.test < 1 or not 16 <= args.resolution <= 4096:
+        ap.error("need --train >= 2, --test >= 1 and 16 <= --resolution <= 4096")
     out = os.path.abspath(args.out_dir)
     os.makedirs(out, exist_ok=True)
 
