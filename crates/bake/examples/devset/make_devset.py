@@ -1318,9 +1318,9 @@ meta.json) and OUT_DIR/NAME-<train> (all views, the same images by relative path
 Finished captures are skipped; an interrupted one resumes. See README.md next to this script.
 
 examples:
-  make_devset.py /data/devset                 # everything: 5 x (200 + 60) views at 256x256
-  make_devset.py /tmp/smoke --quick           # 8 + 4 views at 64x64, the same meshes
-  make_devset.py /data/devset --only thin     # one capture""",
+  make_devset.py devset                       # everything: 5 x (200 + 60) views at 256x256
+  make_devset.py smoke --quick                # 8 + 4 views at 64x64, the same meshes
+  make_devset.py devset --only thin           # one capture""",
     )
     ap.add_argument("out_dir", help="folder to write the captures into (one sub-folder per capture)")
     ap.add_argument("--quick", action="store_true", help="smoke test: 8 + 4 views at 64x64")
