@@ -847,11 +847,17 @@ impl NnCtx<'_> {
         let full = ncw / NR;
         let rows = &self.b_rows[k0..k0 + kc];
         assert!(pack.len() >= ncw.div_ceil(NR) * kc * NR && j + ncw <= self.b.len() - self.max_row);
+        // The SIMD copy exists on x86_64 only. (A `#[cfg]` on an `if` removes its `else` too,
+        // which left full strips unpacked on every other target.)
         #[cfg(target_arch = "x86_64")]
-        if self.level >= SimdLevel::Avx2 && full > 0 {
+        let simd = self.level >= SimdLevel::Avx2 && full > 0;
+        #[cfg(not(target_arch = "x86_64"))]
+        let simd = false;
+        if simd {
             // SAFETY: the level implies the CPU has the instructions; every row is read at
             // `rows[kk] + j .. + full * NR <= max_row + j + ncw <= b.len()` and every write is
             // below `full * kc * NR <= pack.len()` (asserted above).
+            #[cfg(target_arch = "x86_64")]
             unsafe {
                 if self.level == SimdLevel::Avx512 {
                     avx512::pack_b(pack, self.b, rows, j, full);
