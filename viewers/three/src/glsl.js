@@ -472,7 +472,16 @@ uniform vec3 uCamDir;
 out vec3 vLocal;
 flat out vec3 vEye;
 out vec2 vUv;
+#ifdef DNR_EXACT
+in vec3 aP0, aP1, aP2;
+in vec2 aT0, aT1, aT2;
+flat out vec3 vP0, vP1, vP2;
+flat out vec2 vT0, vT1, vT2;
+#endif
 void main() {
+  #ifdef DNR_EXACT
+  vP0 = aP0; vP1 = aP1; vP2 = aP2; vT0 = aT0; vT1 = aT1; vT2 = aT2;
+  #endif
   #include <batching_vertex>
   #include <skinbase_vertex>
   #include <morphinstance_vertex>
@@ -509,13 +518,41 @@ uniform float uRid;
 in vec3 vLocal;
 flat in vec3 vEye;
 in vec2 vUv;
+#ifdef DNR_EXACT
+uniform mat4 uInvMVP;
+uniform vec2 uViewport;
+flat in vec3 vP0, vP1, vP2;
+flat in vec2 vT0, vT1, vT2;
+#endif
 layout(location = 0) out vec4 gOut0;
 layout(location = 1) out vec4 gOut1;
 void main() {
-  vec3 v = uOrtho ? vEye : vLocal - vEye;
+  vec2 uv = vUv;
+  vec3 P = vLocal;
+#ifdef DNR_EXACT
+  // The point of the triangle on the ray through the pixel centre, in local space: the
+  // rasteriser's interpolation follows its subpixel snapping (1/16 pixel in SwiftShader),
+  // which moves uv by up to a few hundredths of a pixel.
+  vec2 ndc = 2.0 * gl_FragCoord.xy / uViewport - 1.0;
+  vec4 q = uInvMVP * vec4(ndc, 0.0, 1.0);
+  vec3 onRay = q.xyz / q.w;
+  vec3 o = uOrtho ? onRay : vEye;
+  vec3 dir = uOrtho ? vEye : onRay - vEye;
+  vec3 e1 = vP1 - vP0, e2 = vP2 - vP0;
+  vec3 pv = cross(dir, e2);
+  float det = dot(e1, pv);
+  if (det != 0.0) {
+    vec3 tv = o - vP0;
+    float b1 = dot(tv, pv) / det;
+    float b2 = dot(dir, cross(tv, e1)) / det;
+    uv = vT0 + (vT1 - vT0) * b1 + (vT2 - vT0) * b2;
+    P = vP0 + e1 * b1 + e2 * b2;
+  }
+#endif
+  vec3 v = uOrtho ? vEye : P - vEye;
   float l = length(v);
   vec3 d = (l > 0.0 && !isinf(l)) ? v / l : vec3(0.0);
-  gOut0 = vec4(vUv, uTex, uRid);
+  gOut0 = vec4(uv, uTex, uRid);
   gOut1 = vec4(d, 0.0);
 }
 `;

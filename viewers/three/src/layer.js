@@ -63,6 +63,46 @@ export function pinholeOf(camera, width, height) {
   };
 }
 
+/**
+ * A non-indexed copy of a triangle geometry whose every vertex also carries its triangle's
+ * three local positions (aP0..aP2) and texture coordinates (aT0..aT2), for the G-buffer's
+ * exact evaluation at pixel centres.
+ */
+function exactGeometry(geometry, uvName) {
+  const pos = geometry.getAttribute('position');
+  const uv = uvName ? geometry.getAttribute(uvName) : null;
+  const index = geometry.getIndex();
+  const count = index ? index.count : pos.count;
+  const tris = Math.floor(count / 3);
+  const P = new Float32Array(tris * 9);
+  const T = new Float32Array(tris * 6);
+  for (let t = 0; t < tris; t++) {
+    for (let k = 0; k < 3; k++) {
+      const v = index ? index.getX(3 * t + k) : 3 * t + k;
+      P.set([pos.getX(v), pos.getY(v), pos.getZ(v)], 9 * t + 3 * k);
+      if (uv) T.set([uv.getX(v), uv.getY(v)], 6 * t + 2 * k);
+    }
+  }
+  const g = new BufferGeometry();
+  g.setAttribute('position', new Float32BufferAttribute(P, 3));
+  for (let k = 0; k < 3; k++) {
+    const p = new Float32Array(tris * 9);
+    const q = new Float32Array(tris * 6);
+    for (let t = 0; t < tris; t++) {
+      for (let j = 0; j < 3; j++) {
+        p.set(P.subarray(9 * t + 3 * k, 9 * t + 3 * k + 3), 9 * t + 3 * j);
+        q.set(T.subarray(6 * t + 2 * k, 6 * t + 2 * k + 2), 6 * t + 2 * j);
+      }
+    }
+    g.setAttribute(`aP${k}`, new Float32BufferAttribute(p, 3));
+    g.setAttribute(`aT${k}`, new Float32BufferAttribute(q, 2));
+  }
+  if (uv) g.setAttribute(uvName, new Float32BufferAttribute(T, 2));
+  g.boundingSphere = geometry.boundingSphere;
+  g.boundingBox = geometry.boundingBox;
+  return g;
+}
+
 export class DNRNeuralLayer {
   /**
    * @param {import('three').WebGLRenderer} renderer
@@ -143,10 +183,20 @@ export class DNRNeuralLayer {
       }
       b.fallback = b.object.material;
       if (entry.gpu) {
+        const o = b.object;
+        // Exact uv and view direction at pixel centres (see GBUFFER_FRAGMENT) for rigid
+        // meshes; skinned, morphed and instanced ones use the interpolated attributes.
+        const rigid = !o.isSkinnedMesh && !o.isInstancedMesh && !o.isBatchedMesh && !o.geometry.morphAttributes.position;
+        if (rigid) {
+          b.exactGeometry = exactGeometry(o.geometry, hasUv ? attr : null);
+          defines.DNR_EXACT = '';
+        }
         b.gbuffer = gbufferMaterial(DoubleSide, {
           ...this.shared,
           uTex: { value: hasUv ? entry.gpu.texBase + b.binding.neuralTexture : -1 },
           uRid: { value: entry.gpu.rendBase + b.binding.renderer + 1 },
+          uInvMVP: { value: new Matrix4() },
+          uViewport: { value: [1, 1] },
         }, defines);
       }
     }
@@ -164,7 +214,7 @@ export class DNRNeuralLayer {
     this._showNeural(a, false);
     a.gpu?.dispose();
     a.cpuTexture?.dispose();
-    for (const b of a.bound) b.gbuffer?.dispose();
+    for (const b of a.bound) { b.gbuffer?.dispose(); b.exactGeometry?.dispose(); }
     this.decoder.request({ op: 'drop', asset: a.cpuAsset }).catch(() => {});
     this.passes = null;
     this.frameSize = [0, 0];
@@ -242,15 +292,30 @@ export class DNRNeuralLayer {
   _gbufferPass(scene, camera) {
     const r = this.renderer;
     const bound = new Map();
-    for (const a of this.assets) if (a.gpu) for (const b of a.bound) bound.set(b.object, b.gbuffer);
+    const vp = new Matrix4().multiplyMatrices(camera.projectionMatrix, camera.matrixWorldInverse);
+    for (const a of this.assets) {
+      if (!a.gpu) continue;
+      for (const b of a.bound) {
+        bound.set(b.object, b);
+        const u = b.gbuffer.uniforms;
+        u.uInvMVP.value.multiplyMatrices(vp, b.object.matrixWorld).invert();
+        u.uViewport.value = this.frameSize;
+      }
+    }
     const saved = [];
     scene.traverse((o) => {
       if (o.isMesh) {
         const m = o.material;
         const sideOf = (mm) => (mm && mm.side !== undefined ? mm.side : FrontSide);
-        const g = bound.get(o);
+        const b = bound.get(o);
         saved.push([o, 'material', m]);
-        if (g) o.material = g;
+        if (b) {
+          o.material = b.gbuffer;
+          if (b.exactGeometry) {
+            saved.push([o, 'geometry', o.geometry]);
+            o.geometry = b.exactGeometry;
+          }
+        }
         else if (Array.isArray(m)) o.material = m.map((mm) => this.coreMaterials[sideOf(mm)]);
         else o.material = this.coreMaterials[sideOf(m)];
       } else if ((o.isLine || o.isPoints || o.isSprite) && o.visible) {
