@@ -475,8 +475,13 @@ out vec2 vUv;
 #ifdef DNR_EXACT
 in vec3 aP0, aP1, aP2;
 in vec2 aT0, aT1, aT2;
+uniform vec2 uViewport;
 flat out vec3 vP0, vP1, vP2;
 flat out vec2 vT0, vT1, vT2;
+flat out vec2 vS0, vS1, vS2;
+flat out float vExact;
+float cross2(vec2 a, vec2 b) { return a.x * b.y - a.y * b.x; }
+vec2 toScreen(vec4 c) { return (c.xy / c.w * 0.5 + 0.5) * uViewport; }
 #endif
 void main() {
   #ifdef DNR_EXACT
@@ -490,6 +495,30 @@ void main() {
   #include <skinning_vertex>
   #include <project_vertex>
   vLocal = transformed;
+  #ifdef DNR_EXACT
+  // Coverage decided at pixel centres from the exact triangle (fragment shader): the
+  // triangle is grown here by 3/4 pixel in screen space (each vertex moved to where its two
+  // edges, pushed outwards, meet), so every pixel centre inside it gets a fragment even when
+  // the rasteriser snaps vertices coarsely.
+  mat4 mvp = projectionMatrix * modelViewMatrix;
+  vec4 c0 = mvp * vec4(aP0, 1.0), c1 = mvp * vec4(aP1, 1.0), c2 = mvp * vec4(aP2, 1.0);
+  vExact = (c0.w > 0.0 && c1.w > 0.0 && c2.w > 0.0) ? 1.0 : 0.0;
+  vS0 = vS1 = vS2 = vec2(0.0);
+  if (vExact > 0.5) {
+    vS0 = toScreen(c0); vS1 = toScreen(c1); vS2 = toScreen(c2);
+    float sgn = cross2(vS1 - vS0, vS2 - vS0) >= 0.0 ? 1.0 : -1.0;
+    vec2 a = vS2, v = vS0, b = vS1;
+    if (position == aP1) { a = vS0; v = vS1; b = vS2; }
+    else if (position == aP2) { a = vS1; v = vS2; b = vS0; }
+    vec2 ea = v - a, eb = b - v;
+    if (dot(ea, ea) > 0.0 && dot(eb, eb) > 0.0) {
+      vec2 na = sgn * normalize(vec2(ea.y, -ea.x));
+      vec2 nb = sgn * normalize(vec2(eb.y, -eb.x));
+      vec2 off = 0.75 * (na + nb) / max(1.0 + dot(na, nb), 0.1);
+      gl_Position.xy += off / uViewport * 2.0 * gl_Position.w;
+    }
+  }
+  #endif
   mat4 M = modelMatrix;
   #ifdef USE_BATCHING
   M = M * batchingMatrix;
@@ -523,6 +552,9 @@ uniform mat4 uInvMVP;
 uniform vec2 uViewport;
 flat in vec3 vP0, vP1, vP2;
 flat in vec2 vT0, vT1, vT2;
+flat in vec2 vS0, vS1, vS2;
+flat in float vExact;
+float cross2(vec2 a, vec2 b) { return a.x * b.y - a.y * b.x; }
 #endif
 layout(location = 0) out vec4 gOut0;
 layout(location = 1) out vec4 gOut1;
@@ -530,6 +562,27 @@ void main() {
   vec2 uv = vUv;
   vec3 P = vLocal;
 #ifdef DNR_EXACT
+  if (vExact > 0.5) {
+    // Is the pixel centre inside the (ungrown) triangle? As the dnr runtime decides it: image
+    // coordinates with y down, vertices snapped to 1/256 pixel, the top-left rule for centres
+    // exactly on an edge.
+    vec2 flipY = vec2(0.0, uViewport.y);
+    vec2 p = vec2(gl_FragCoord.x, uViewport.y - gl_FragCoord.y);
+    vec2 v[3];
+    v[0] = round(vec2(vS0.x, uViewport.y - vS0.y) * 256.0) / 256.0;
+    v[1] = round(vec2(vS1.x, uViewport.y - vS1.y) * 256.0) / 256.0;
+    v[2] = round(vec2(vS2.x, uViewport.y - vS2.y) * 256.0) / 256.0;
+    float area = cross2(v[1] - v[0], v[2] - v[0]);
+    if (area == 0.0) discard;
+    if (area < 0.0) { vec2 t = v[1]; v[1] = v[2]; v[2] = t; }
+    for (int k = 0; k < 3; k++) {
+      vec2 a = v[(k + 1) % 3], b = v[(k + 2) % 3];
+      vec2 d = b - a;
+      float e = cross2(d, p - a);
+      bool topLeft = d.y < 0.0 || (d.y == 0.0 && d.x > 0.0);
+      if (e < 0.0 || (e == 0.0 && !topLeft)) discard;
+    }
+  }
   // The point of the triangle on the ray through the pixel centre, in local space: the
   // rasteriser's interpolation follows its subpixel snapping (1/16 pixel in SwiftShader),
   // which moves uv by up to a few hundredths of a pixel.
