@@ -117,11 +117,9 @@ test('the forced CPU path gives the GPU result', async () => {
   const info = await cpuPage.evaluate((u) => harness.load(u), '/samples/valid/scene_multi_primitive.glb');
   assert.equal(info.status, 'cpu');
   const cpu = fromB64((await cpuPage.evaluate((k) => harness.cpu(k), c)).rgba);
-  const logs = await cpuPage.evaluate(() => harness.logs);
   await cpuPage.close();
   report('scene_multi_primitive', 'forced CPU path', c.name, compare(cpu, gpu));
   assert.deepEqual(cpu, decodePng(readFileSync(join(samples, c.png))).rgba, 'the wasm runtime reproduces the reference exactly');
-  assert.ok(logs.some((l) => l.includes('forced') || l.includes('CPU')) || true);
 });
 
 test('an invalid sample shows the fallback and logs its codes', async () => {
