@@ -109,6 +109,43 @@ test('a baked duck matches dnr render', async () => {
   await checkAsset('/out/duck.glb', duck, cams, { references: false });
 });
 
+test('the example viewer shows the baked duck as dnr render does', async () => {
+  const duck = join(out, 'duck.glb');
+  assert.ok(existsSync(duck), 'the duck test bakes it first');
+  const c = { eye: [2.4, 1.1, 2.2], target: [0, 0, 0], fovY: 40 };
+  const [w, h] = [200, 150];
+  const view = await browser.newPage();
+  const errors = [];
+  view.on('pageerror', (e) => errors.push(String(e)));
+  await view.goto(`${server.url}/example/?asset=/out/duck.glb&eye=${c.eye}&target=${c.target}&fov=${c.fovY}&size=${w}x${h}&ui=0`);
+  await view.waitForFunction(() => window.viewer !== undefined);
+  assert.equal(await view.evaluate(() => window.viewer.ready), 'gpu');
+  const frames = () => view.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+  await frames();
+  const shot = async (file) => {
+    const png = await view.locator('canvas').screenshot({ path: join(out, file) });
+    return decodePng(png);
+  };
+  const neural = await shot('example-neural.png');
+  assert.equal(neural.width, w);
+  // dnr render of the same camera, over the viewer's white background.
+  const ref = dnrRender(duck, c, w, h, join(out, 'example-dnr-render.png'));
+  const over = new Uint8Array(ref.length);
+  for (let i = 0; i < ref.length; i += 4) {
+    const a = ref[i + 3] / 255;
+    for (let k = 0; k < 3; k++) over[i + k] = Math.floor(255 * (a * ref[i + k] / 255 + (1 - a)) + 0.5);
+    over[i + 3] = 255;
+  }
+  report('example viewer canvas (duck)', 'dnr render over white', `${w}x${h}`, compare(over, neural.rgba));
+  await view.evaluate(() => window.viewer.setNeural(false));
+  await frames();
+  const fallback = await shot('example-fallback.png');
+  const changed = fallback.rgba.filter((v, i) => Math.abs(v - neural.rgba[i]) > 8).length;
+  assert.ok(changed > 100, `the fallback looks different from the neural layer (${changed} values differ)`);
+  assert.deepEqual(errors, []);
+  await view.close();
+});
+
 test('the forced CPU path gives the GPU result', async () => {
   const c = cameras['valid/scene_multi_primitive.glb'][0];
   await page.evaluate((u) => harness.load(u), '/samples/valid/scene_multi_primitive.glb');
