@@ -71,15 +71,18 @@ window.addEventListener('drop', (e) => {
   if (f) open(URL.createObjectURL(f), f.name);
 });
 
+// Frame time: the interval between animation frames (the GPU's work included, as the
+// browser paces frames to it), averaged.
 let avg = 0;
-renderer.setAnimationLoop(() => {
-  const t0 = performance.now();
+let last = 0;
+renderer.setAnimationLoop((now) => {
   controls.update();
   renderer.render(scene, camera);
   layer.render(scene, camera);
-  const ms = performance.now() - t0;
-  avg = avg ? 0.9 * avg + 0.1 * ms : ms;
-  timeEl.textContent = `${avg.toFixed(1)} ms/frame (CPU-side; ${layer.path})`;
+  if (last) avg = avg ? 0.9 * avg + 0.1 * (now - last) : now - last;
+  last = now;
+  const mode = !current?.userData.dnr ? '' : neuralEl.checked ? ` ${layer.path}` : ' fallback';
+  timeEl.textContent = `${avg.toFixed(1)} ms/frame${mode}`;
 });
 
 window.viewer = {
