@@ -51,6 +51,7 @@ const PAR_MIN_PACK: usize = 1 << 15;
 /// Blocks of at most this many rows skip packing B in [`gemm_nn`] (AVX-512). Measured on
 /// Zen 5 (48 KB L1): reading B in place wins up to M = 64 (4 x 128 x 16512: 65 -> 280
 /// GFLOP/s, 16 x 256 x 16512: 240 -> 410); for large M packing wins (1024^3: 400 vs 240).
+#[cfg(target_arch = "x86_64")]
 const DIRECT_MAX_ROWS: usize = MC;
 /// Products with at most this many columns read weights used once in place
 /// ([`AOperand::offsets`]) instead of packing them first: each A value is then read about
@@ -1087,6 +1088,8 @@ impl NtCtx<'_> {
                 && bo.iter().all(|&o| o + kc <= self.b.len())
         );
         assert!(ao.len() == rv && bo.len() == cv && kc <= self.k);
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = next; // only the x86_64 kernels prefetch
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
             let (a, b) = (self.a, self.b);
