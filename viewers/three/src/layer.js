@@ -123,7 +123,9 @@ export class DNRNeuralLayer {
     this.passes = null;
     this.gpuProblem = forceCPU ? 'forced' : probeGPU(renderer);
     this.mode = forceCPU ? 'cpu' : (this.gpuProblem ? 'cpu' : 'gpu');
-    if (this.gpuProblem && !forceCPU) {
+    if (forceCPU) {
+      console.info('dnr: CPU path forced; the wasm CPU renderer draws the neural layer');
+    } else if (this.gpuProblem) {
       console.info(`dnr: GPU path unavailable (${this.gpuProblem}); the wasm CPU renderer draws the neural layer`);
     }
     const gl = renderer.getContext();
