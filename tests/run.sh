@@ -43,5 +43,10 @@ step "reference OpenEXR decode of every level in samples/valid"
 step "spec examples against the JSON Schema"
 "$tools/venv/bin/python" spec/EXT_deferred_neural_rendering/check_examples.py
 
+step "browser conformance of the three.js plugin (viewers/three: npm test)"
+# Installs chromium (apt) and the node packages, builds the wasm module, bakes a small duck.
+cargo build -p dnr-bake
+(cd viewers/three && npm test)
+
 echo
 echo "all test steps passed"

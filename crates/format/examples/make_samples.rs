@@ -34,6 +34,111 @@ pub struct Sample {
     pub expected: Vec<&'static str>,
 }
 
+/// A reference camera of a valid sample: `dnr_runtime::camera::Camera::look_at(eye, target,
+/// fov_y, width, height)` (+Y up, square pixels, principal point at the frame centre), which is
+/// what `dnr render ASSET --look-at EYE,TARGET --fov FOV_Y --size WxH` draws. The reference
+/// renders of `samples/references/` are made from these by `tests/examples/make_references.rs`.
+pub struct RefCamera {
+    /// File stem of the reference images.
+    pub name: &'static str,
+    /// Eye position in world space.
+    pub eye: [f32; 3],
+    /// Point looked at.
+    pub target: [f32; 3],
+    /// Vertical field of view in degrees.
+    pub fov_y: f32,
+    /// Frame width in pixels.
+    pub width: u32,
+    /// Frame height in pixels.
+    pub height: u32,
+    /// What the view shows.
+    pub note: &'static str,
+}
+
+/// The reference cameras of every valid sample (path relative to `samples/`). Every sample has
+/// one frame size that is not a multiple of its U-Net's stride (odd sizes); the scene's cameras
+/// see several primitives. Eyes sit off the symmetry axes so that few pixel centres fall on
+/// triangle edges.
+pub fn reference_cameras() -> Vec<(&'static str, Vec<RefCamera>)> {
+    let quad = || {
+        vec![
+            RefCamera {
+                name: "front",
+                eye: [0.07, -0.04, 1.5],
+                target: [0.0, 0.0, 0.0],
+                fov_y: 45.0,
+                width: 64,
+                height: 48,
+                note: "the quad from the front",
+            },
+            RefCamera {
+                name: "oblique",
+                eye: [0.9, 0.55, 1.1],
+                target: [0.03, -0.02, 0.0],
+                fov_y: 40.0,
+                width: 61,
+                height: 45,
+                note: "from above right; odd frame size",
+            },
+            RefCamera {
+                name: "back",
+                eye: [-0.35, 0.2, -1.3],
+                target: [0.0, 0.01, 0.0],
+                fov_y: 50.0,
+                width: 37,
+                height: 29,
+                note: "the back face (never culled); odd frame size",
+            },
+        ]
+    };
+    let mut out: Vec<(&'static str, Vec<RefCamera>)> = [
+        "valid/none_1level.glb",
+        "valid/none_sh1_clamp.glb",
+        "valid/mlp_f16_2levels.glb",
+        "valid/mlp_f32_sh2_4levels.glb",
+        "valid/mlp_linear.gltf",
+        "valid/unet_transposed_instance_f16.glb",
+        "valid/unet_upsample_none_f32.glb",
+        "valid/unet_depth1_external.gltf",
+    ]
+    .into_iter()
+    .map(|s| (s, quad()))
+    .collect();
+    out.push((
+        "valid/scene_multi_primitive.glb",
+        vec![
+            RefCamera {
+                name: "overview",
+                eye: [0.4, 1.3, 6.5],
+                target: [-0.2, -0.1, 0.3],
+                fov_y: 45.0,
+                width: 96,
+                height: 64,
+                note: "every instance: both renderers, both textures, the pyramid",
+            },
+            RefCamera {
+                name: "oblique",
+                eye: [4.2, 2.6, 4.4],
+                target: [0.1, -0.2, 0.4],
+                fov_y: 40.0,
+                width: 83,
+                height: 57,
+                note: "from the right, primitives overlapping; odd frame size",
+            },
+            RefCamera {
+                name: "low",
+                eye: [-2.9, -1.1, 4.8],
+                target: [0.3, 0.1, 0.2],
+                fov_y: 38.0,
+                width: 71,
+                height: 53,
+                note: "from below left; odd frame size",
+            },
+        ],
+    ));
+    out
+}
+
 #[allow(dead_code)]
 fn main() -> Res<()> {
     let out = std::env::args()
@@ -1058,6 +1163,48 @@ fn write_index(dir: &Path, samples: &[Sample]) -> Res<()> {
         ));
     }
     md.push_str("\n`valid/unet_depth1_external.bin` is the external buffer of `valid/unet_depth1_external.gltf`.\n");
+    md.push_str(&references_section());
     fs::write(dir.join("README.md"), md)?;
     Ok(())
+}
+
+/// The README section on the reference renders (spec, "Conformance Samples").
+fn references_section() -> String {
+    let mut md = String::from(
+        "\n## Reference renders\n\n\
+         For every valid sample, `references/<sample>/<camera>.png` is the neural layer that\n\
+         `dnr-runtime` draws for each camera below: 8-bit RGBA, straight alpha, sRGB-encoded\n\
+         colour, transparent where no renderer draws (`q = floor(255 * c + 0.5)`), and\n\
+         `<camera>.f32` holds the values it was rounded from (`height * width * 4` little-endian\n\
+         `f32`, rows top first, RGBA per pixel). `references/cameras.json` gives each camera in\n\
+         full: pinhole `fx, fy, cx, cy` in pixels (pixel centres at `(px + 0.5, py + 0.5)`, rows\n\
+         top first), `camToWorld` (16 values, column-major, OpenGL convention: the camera looks\n\
+         along its local -Z, +Y up), the frame size and a near plane of 0.01 (no geometry is\n\
+         nearer). Each camera is `look_at(eye, target)` with +Y up and a vertical field of view,\n\
+         so `dnr render ASSET --look-at EX,EY,EZ,TX,TY,TZ --fov FOV --size WxH` draws it too.\n\
+         They are written by `cargo run -p dnr-conformance --example make_references`\n\
+         (deterministic); `tests/references.rs` checks that the runtime reproduces them and that\n\
+         the committed files are current.\n\n\
+         **Tolerance** (the spec's default): comparing alpha at every pixel and colour where the\n\
+         reference alpha is above 0, at least 99.5 % of the pixels differ by at most 2 (of 255)\n\
+         in every compared channel, and the mean absolute difference over the compared channels\n\
+         is at most 0.5 (of 255).\n\n\
+         | sample | camera | eye | target | fov (deg) | size | shows |\n|---|---|---|---|---|---|---|\n",
+    );
+    for (sample, cams) in reference_cameras() {
+        for c in cams {
+            let v = |a: [f32; 3]| format!("{}, {}, {}", a[0], a[1], a[2]);
+            md.push_str(&format!(
+                "| `{sample}` | `{}` | {} | {} | {} | {}x{} | {} |\n",
+                c.name,
+                v(c.eye),
+                v(c.target),
+                c.fov_y,
+                c.width,
+                c.height,
+                c.note
+            ));
+        }
+    }
+    md
 }

@@ -51,6 +51,7 @@ const PAR_MIN_PACK: usize = 1 << 15;
 /// Blocks of at most this many rows skip packing B in [`gemm_nn`] (AVX-512). Measured on
 /// Zen 5 (48 KB L1): reading B in place wins up to M = 64 (4 x 128 x 16512: 65 -> 280
 /// GFLOP/s, 16 x 256 x 16512: 240 -> 410); for large M packing wins (1024^3: 400 vs 240).
+#[cfg(target_arch = "x86_64")]
 const DIRECT_MAX_ROWS: usize = MC;
 /// Products with at most this many columns read weights used once in place
 /// ([`AOperand::offsets`]) instead of packing them first: each A value is then read about
@@ -847,11 +848,17 @@ impl NnCtx<'_> {
         let full = ncw / NR;
         let rows = &self.b_rows[k0..k0 + kc];
         assert!(pack.len() >= ncw.div_ceil(NR) * kc * NR && j + ncw <= self.b.len() - self.max_row);
+        // The SIMD copy exists on x86_64 only. (A `#[cfg]` on an `if` removes its `else` too,
+        // which left full strips unpacked on every other target.)
         #[cfg(target_arch = "x86_64")]
-        if self.level >= SimdLevel::Avx2 && full > 0 {
+        let simd = self.level >= SimdLevel::Avx2 && full > 0;
+        #[cfg(not(target_arch = "x86_64"))]
+        let simd = false;
+        if simd {
             // SAFETY: the level implies the CPU has the instructions; every row is read at
             // `rows[kk] + j .. + full * NR <= max_row + j + ncw <= b.len()` and every write is
             // below `full * kc * NR <= pack.len()` (asserted above).
+            #[cfg(target_arch = "x86_64")]
             unsafe {
                 if self.level == SimdLevel::Avx512 {
                     avx512::pack_b(pack, self.b, rows, j, full);
@@ -1081,6 +1088,8 @@ impl NtCtx<'_> {
                 && bo.iter().all(|&o| o + kc <= self.b.len())
         );
         assert!(ao.len() == rv && bo.len() == cv && kc <= self.k);
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = next; // only the x86_64 kernels prefetch
         #[cfg(target_arch = "x86_64")]
         if self.level == SimdLevel::Avx512 {
             let (a, b) = (self.a, self.b);

@@ -8,7 +8,9 @@
 //! reorders or fuses float operations, so every path gives the same bits.
 #![allow(unsafe_code)]
 
-use super::gemm::{simd_level, SimdLevel};
+#[cfg(target_arch = "x86_64")]
+use super::gemm::simd_level;
+use super::gemm::SimdLevel;
 
 /// Runs `f` compiled for AVX-512F, AVX2 + FMA or the baseline, whichever
 /// [`simd_level`] allows (tests force the baseline with `set_simd_cap`). Keep `f` a plain
@@ -22,6 +24,8 @@ pub fn widest<R>(f: impl FnOnce() -> R) -> R {
 /// gathers and sparse rows of 16 channels lost 20% with AVX-512 on an Intel Xeon).
 #[inline(always)]
 pub fn widest_up_to<R>(cap: SimdLevel, f: impl FnOnce() -> R) -> R {
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = cap; // one instruction set elsewhere
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx512f")]
