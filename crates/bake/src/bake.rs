@@ -38,6 +38,8 @@ pub struct BakeOptions {
     pub write_f32: Option<PathBuf>,
     /// `--preset auto`: also write the state just before pruning here.
     pub write_unpruned: Option<PathBuf>,
+    /// Capture loading choices (working size, UVs, mesh placement, alignment check).
+    pub input: crate::capture::InputOptions,
 }
 
 /// Final figures of a bake.
@@ -77,6 +79,8 @@ struct Report<'a> {
     records: &'a [Record],
     /// Divergences the training loop recovered from (rollback, halved learning rates).
     recoveries: &'a [crate::train::Recovery],
+    /// What loading found and did: timings, UVs, the alignment check.
+    load: &'a crate::capture::LoadReport,
     /// `--preset auto`: what was measured and decided.
     #[serde(skip_serializing_if = "Option::is_none")]
     auto: Option<&'a crate::auto::AutoReport>,
@@ -119,6 +123,7 @@ pub(crate) struct Loaded {
     pub capture: Capture,
     pub train: Vec<views::View>,
     pub test: Vec<views::View>,
+    pub load: crate::capture::LoadReport,
 }
 
 /// Loads the capture and prepares the views (also sets the thread count).
@@ -129,14 +134,22 @@ pub(crate) fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, Bake
             .num_threads(cfg.threads)
             .build_global();
     }
-    let load = LoadOptions {
-        mesh: opts.mesh.clone(),
-        limits: opts.limits,
-        ..LoadOptions::default()
-    };
-    let capture = Capture::load(&opts.capture, &load)?;
+    let load: LoadOptions = opts.input.load_options(opts.mesh.clone(), opts.limits);
+    let mut capture = Capture::load(&opts.capture, &load)?;
+    // Before training: does the mesh line up with the photographs?
+    let alignment = crate::capture::alignment::check(&mut capture, &opts.input.alignment)?;
     for w in &capture.warnings {
         eprintln!("dnr-bake: warning: {w}");
+    }
+    let load = capture.load_report(&load, alignment);
+    if opts.input.verbose {
+        for k in &load.ignored_keys {
+            eprintln!("dnr-bake: ignored key {k}");
+        }
+        eprintln!(
+            "dnr-bake: load timings (s): {}",
+            serde_json::to_string(&load.timings).unwrap_or_default()
+        );
     }
     let train = views::prepare(&capture.mesh, &capture.train);
     let test = views::prepare(&capture.mesh, &capture.test);
@@ -144,6 +157,7 @@ pub(crate) fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, Bake
         capture,
         train,
         test,
+        load,
     })
 }
 
@@ -255,6 +269,7 @@ pub(crate) fn finish(
             warnings: &loaded.capture.warnings,
             records: &records,
             recoveries: &recoveries,
+            load: &loaded.load,
             auto: outcome.auto,
             summary: &summary,
         };

@@ -220,6 +220,103 @@ impl Default for LoadOptions {
     }
 }
 
+/// Loading choices `dnr-bake` exposes besides the mesh and the limits.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct InputOptions {
+    /// `--max-side` (see [`LoadOptions::max_side`]).
+    pub max_side: u32,
+    /// `--uv`.
+    pub uv: UvMode,
+    /// `--mesh-space`.
+    pub mesh_space: MeshSpace,
+    /// `--skip-alignment-check`, `--drop-misaligned`.
+    pub alignment: alignment::AlignmentOptions,
+    /// `--verbose`: list ignored keys and load timings.
+    pub verbose: bool,
+}
+
+impl Default for InputOptions {
+    fn default() -> Self {
+        InputOptions {
+            max_side: DEFAULT_MAX_SIDE,
+            uv: UvMode::Auto,
+            mesh_space: MeshSpace::Auto,
+            alignment: Default::default(),
+            verbose: false,
+        }
+    }
+}
+
+impl InputOptions {
+    /// The load options with these choices, `mesh` and `limits`.
+    pub fn load_options(&self, mesh: Option<PathBuf>, limits: Limits) -> LoadOptions {
+        LoadOptions {
+            mesh,
+            max_side: self.max_side,
+            uv: self.uv,
+            mesh_space: self.mesh_space,
+            limits,
+            ..LoadOptions::default()
+        }
+    }
+}
+
+/// What loading found and did, for the bake report (`load`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct LoadReport {
+    /// `transforms`, `colmap-bin` or `colmap-txt`.
+    pub format: &'static str,
+    /// The working-size limit used.
+    pub max_side: u32,
+    /// Frames downscaled to it.
+    pub frames_resized: usize,
+    /// Frames resampled through their lens model.
+    pub frames_undistorted: usize,
+    /// Frames with a mask.
+    pub frames_masked: usize,
+    /// Where the mesh was placed.
+    pub mesh_space: MeshSpace,
+    /// Seconds per load step.
+    pub timings: LoadTimings,
+    /// The UV step.
+    pub uv: UvReport,
+    /// The alignment check.
+    pub alignment: alignment::AlignmentReport,
+    /// Keys of the transforms file(s) that were not used.
+    pub ignored_keys: Vec<String>,
+}
+
+impl Capture {
+    /// The report of this load with the alignment check's figures.
+    pub fn load_report(
+        &self,
+        opts: &LoadOptions,
+        alignment: alignment::AlignmentReport,
+    ) -> LoadReport {
+        let frames = || self.train.iter().chain(&self.test);
+        LoadReport {
+            format: match self.format {
+                CaptureFormat::Transforms => "transforms",
+                CaptureFormat::Colmap(colmap::Encoding::Binary) => "colmap-bin",
+                CaptureFormat::Colmap(colmap::Encoding::Text) => "colmap-txt",
+            },
+            max_side: opts.max_side,
+            frames_resized: frames()
+                .filter(|f| (f.width(), f.height()) != f.source_size)
+                .count(),
+            frames_undistorted: frames().filter(|f| f.undistorted).count(),
+            frames_masked: frames().filter(|f| f.has_mask).count(),
+            mesh_space: self.mesh_space,
+            timings: self.timings,
+            uv: self.uv.clone(),
+            alignment,
+            ignored_keys: self.ignored_keys.clone(),
+        }
+    }
+}
+
 /// A camera as read, in f64: pinhole intrinsics in pixels (pixel centres at half-integers)
 /// and camera-to-world in the capture convention (OpenGL camera: -Z forward, +Y up).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -225,6 +225,7 @@ pub fn run(plan: &Plan<'_>) -> Result<Table> {
                 // `dnr bench render ASSET --against REFERENCE`.
                 write_f32: Some(plan.out.join(format!("{stem}.f32.glb"))),
                 write_unpruned: per_budget.then(|| plan.out.join(format!("{stem}.unpruned.glb"))),
+                input: Default::default(),
             };
             let summary = bake(&cfg, &opts).with_context(|| format!("baking `{stem}`"))?;
             if per_budget {
