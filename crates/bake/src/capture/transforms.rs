@@ -767,7 +767,7 @@ pub(crate) fn resolve_camera(
     }
     let cx = k.cx.unwrap_or(0.5 * wf);
     let cy = k.cy.unwrap_or(0.5 * hf);
-    let distortion = resolve_lens(&ctx, frame, &k)?;
+    let distortion = resolve_lens(&ctx, frame, &file.top, &k)?;
     Ok(ResolvedCamera {
         camera: CameraRecord {
             fx,
@@ -783,25 +783,35 @@ pub(crate) fn resolve_camera(
 }
 
 /// The lens of a frame: `is_fisheye` or `camera_model` pick the formula (without either, an
-/// OpenCV lens when a coefficient is non-zero); coefficients come from `k1`..`p2`, else
-/// `distortion_params`, key by key as merged.
+/// OpenCV lens when a coefficient is non-zero). Coefficients: the top level's `k1`..`p2` or
+/// `distortion_params`, then the frame's: its `distortion_params` replace them all, its
+/// `k1`..`p2` replace one each. Both forms at one level are an error.
 fn resolve_lens(
     ctx: &Ctx<'_>,
     frame: &RawFrame,
+    top: &RawIntrinsics,
     k: &RawIntrinsics,
 ) -> Result<Distortion, CaptureError> {
     let at = format!("frames[{}]", frame.index);
-    let explicit = [k.k1, k.k2, k.k3, k.k4, k.p1, k.p2];
-    if k.distortion_params.is_some() && explicit.iter().any(Option::is_some) {
-        return Err(ctx.err(
-            &at,
-            "both distortion_params and k1..k4/p1/p2 are given: keep one",
-        ));
+    let explicit = |r: &RawIntrinsics| [r.k1, r.k2, r.k3, r.k4, r.p1, r.p2];
+    let mut c = [0.0f64; 6];
+    for (level, r) in [("the top level", top), (at.as_str(), &frame.intrinsics)] {
+        let keys = explicit(r);
+        if r.distortion_params.is_some() && keys.iter().any(Option::is_some) {
+            return Err(ctx.err(
+                &at,
+                format!("both distortion_params and k1..k4/p1/p2 are given at {level}: keep one"),
+            ));
+        }
+        if let Some(d) = r.distortion_params {
+            c = d;
+        }
+        for (slot, v) in c.iter_mut().zip(keys) {
+            if let Some(v) = v {
+                *slot = v;
+            }
+        }
     }
-    let c = match k.distortion_params {
-        Some(d) => d,
-        None => explicit.map(|v| v.unwrap_or(0.0)),
-    };
     let model = match (k.is_fisheye, k.camera_model) {
         (Some(true), None | Some("OPENCV_FISHEYE")) => LensModel::Fisheye,
         (Some(true), Some(m)) => {
