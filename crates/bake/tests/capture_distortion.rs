@@ -116,7 +116,10 @@ fn undistorting_a_photograph_recovers_the_pinhole_image_with_a_validity_mask() {
         let mut rgb = vec![0.0f32; 3 * w * h];
         for y in 0..h {
             for x in 0..w {
-                let (xd, yd) = ((x as f64 + 0.5 - k.cx) / k.fx, (y as f64 + 0.5 - k.cy) / k.fy);
+                let (xd, yd) = (
+                    (x as f64 + 0.5 - k.cx) / k.fx,
+                    (y as f64 + 0.5 - k.cy) / k.fy,
+                );
                 let (xu, yu) = d.undistort(xd, yd).expect("converges");
                 let v = pattern(xu, yu) as f32;
                 rgb[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[v, 1.0 - v, 0.5]);
@@ -134,7 +137,10 @@ fn undistorting_a_photograph_recovers_the_pinhole_image_with_a_validity_mask() {
         for y in 0..h {
             for x in 0..w {
                 let i = y * w + x;
-                let (xn, yn) = ((x as f64 + 0.5 - k.cx) / k.fx, (y as f64 + 0.5 - k.cy) / k.fy);
+                let (xn, yn) = (
+                    (x as f64 + 0.5 - k.cx) / k.fx,
+                    (y as f64 + 0.5 - k.cy) / k.fy,
+                );
                 // Valid exactly when the sample lies inside the photograph.
                 let (xd, yd) = d.distort(xn, yn);
                 let (sx, sy) = (k.fx * xd + k.cx - 0.5, k.fy * yd + k.cy - 0.5);
