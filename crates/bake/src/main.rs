@@ -22,6 +22,7 @@ static ALLOC: dnr_runtime::alloc::LineAligned = dnr_runtime::alloc::LineAligned;
 ///   - a COLMAP sparse model: sparse/0/ (or sparse/) with cameras and images .bin or .txt,
 ///     photos in images/, optional masks in masks/NAME.png; every 8th image in name order
 ///     (0, 8, 16, ...) is held out.
+///
 /// Photos through a lens with distortion (OPENCV, OPENCV_FISHEYE, RADIAL, ...) are
 /// undistorted once at load; photos larger than --max-side are downscaled; black mask
 /// pixels give no loss and do not count in evaluation. The mesh (glb, gltf, obj or ply) may

@@ -218,14 +218,14 @@ pub fn read_model(
         let bytes = read_limited(&cameras_path, max_bytes)?;
         match encoding {
             Encoding::Binary => read_cameras_bin(&cameras_path, &bytes, max_images)?,
-            Encoding::Text => read_cameras_txt(&cameras_path, &text(&cameras_path, &bytes)?)?,
+            Encoding::Text => read_cameras_txt(&cameras_path, text(&cameras_path, &bytes)?)?,
         }
     };
     let images = {
         let bytes = read_limited(&images_path, max_bytes)?;
         match encoding {
             Encoding::Binary => read_images_bin(&images_path, &bytes, max_images)?,
-            Encoding::Text => read_images_txt(&images_path, &text(&images_path, &bytes)?)?,
+            Encoding::Text => read_images_txt(&images_path, text(&images_path, &bytes)?)?,
         }
     };
     if images.len() > max_images {
@@ -239,7 +239,7 @@ pub fn read_model(
         let bytes = read_limited(&points_path, max_bytes)?;
         let p = match encoding {
             Encoding::Binary => read_points_bin(&points_path, &bytes)?,
-            Encoding::Text => read_points_txt(&points_path, &text(&points_path, &bytes)?)?,
+            Encoding::Text => read_points_txt(&points_path, text(&points_path, &bytes)?)?,
         };
         (p, Some(points_path))
     } else {
@@ -542,7 +542,7 @@ fn image(
     let location = format!("image {id}");
     let q = [pose[0], pose[1], pose[2], pose[3]];
     let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if !(norm > 1e-6) {
+    if norm.is_nan() || norm <= 1e-6 {
         return Err(err(
             path,
             location,
@@ -674,7 +674,7 @@ fn read_images_txt(path: &Path, text: &str) -> Result<Vec<ColmapImage>, CaptureE
         let mut point_ids = Vec::new();
         if let Some((pline, pl)) = lines.next() {
             let toks: Vec<&str> = pl.split_whitespace().collect();
-            if toks.len() % 3 != 0 {
+            if !toks.len().is_multiple_of(3) {
                 return Err(err(
                     path,
                     format!("line {pline}"),

@@ -536,7 +536,7 @@ impl Capture {
 
         // Decode and resample in parallel; the first error in file order is reported.
         let t_images = Instant::now();
-        let decoded: Vec<Result<(Frame, LoadTimings, Option<String>), CaptureError>> = plan
+        let decoded: Vec<Result<LoadedFrame, CaptureError>> = plan
             .frames
             .par_iter()
             .map(|p| load_frame(p, opts))
@@ -615,11 +615,11 @@ pub fn place_mesh(mesh: &mut Scene, t: DMat4) {
     }
 }
 
-/// Decodes and resamples one frame; returns it with its step timings and a warning.
-fn load_frame(
-    p: &FramePlan,
-    opts: &LoadOptions,
-) -> Result<(Frame, LoadTimings, Option<String>), CaptureError> {
+/// A decoded frame with its step timings and a warning.
+type LoadedFrame = (Frame, LoadTimings, Option<String>);
+
+/// Decodes and resamples one frame.
+fn load_frame(p: &FramePlan, opts: &LoadOptions) -> Result<LoadedFrame, CaptureError> {
     let mut t = LoadTimings::default();
     let max_side = opts.limits.max_image_side;
     let img = timed(&mut t.decode, || decode_image(&p.image_path, max_side))?;

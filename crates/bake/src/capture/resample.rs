@@ -180,8 +180,8 @@ pub fn undistort(p: &Planes, k: &Intrinsics, d: &Distortion) -> (Planes, Vec<boo
             let mut m = 0.0f32;
             for (i, wt) in taps {
                 let a = p.alpha[i];
-                for c in 0..3 {
-                    acc[c] += wt * a * p.rgb[3 * i + c];
+                for (c, v) in acc[..3].iter_mut().zip(&p.rgb[3 * i..3 * i + 3]) {
+                    *c += wt * a * v;
                 }
                 acc[3] += wt * a;
                 if let Some(src) = &p.mask {
