@@ -37,6 +37,13 @@ cargo test --release -p dnr-bake --features e2e --test e2e_bake 2>&1 | tee -a "$
 step "Khronos glTF-Validator on samples/valid"
 NODE_PATH="$tools/node/node_modules" node tests/scripts/gltf_validator.mjs samples/valid
 
+step "Khronos glTF-Validator on an asset baked from a UV-less PLY (phone-like COLMAP capture)"
+phone=$root/target/phone-capture
+rm -rf "$phone" && mkdir -p "$phone/assets"
+cargo run -q -p dnr-bake --example make_phone_capture -- "$phone" --size 240x180 --frames 10 --segments 16
+cargo run -q -p dnr-bake -- "$phone/phone" -o "$phone/assets/phone.glb" --preset fast --steps 30
+NODE_PATH="$tools/node/node_modules" node tests/scripts/gltf_validator.mjs "$phone/assets"
+
 step "reference OpenEXR decode of every level in samples/valid"
 "$tools/venv/bin/python" tests/scripts/check_exr.py samples/valid
 

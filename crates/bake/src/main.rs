@@ -16,18 +16,32 @@ static ALLOC: dnr_runtime::alloc::LineAligned = dnr_runtime::alloc::LineAligned;
 /// Train a neural texture and deferred neural renderer from posed photographs and write one
 /// self-contained glTF asset (EXT_deferred_neural_rendering, with a plain fallback material).
 ///
-/// CAPTURE is a folder in the NeRF `transforms.json` convention: images, camera poses and a
-/// proxy mesh with UVs. docs/capture-format.md in the dnr repository lists every key read,
-/// the defaults, the limits (--limit) and the errors.
+/// CAPTURE is a folder of posed photographs and a proxy mesh (docs/capture-format.md in the dnr repository
+/// lists every key read, the defaults, the limits (--limit) and the errors):
+///   - transforms.json (nerfstudio's ns-process-data, instant-ngp, NeRF-synthetic), or
+///     transforms_train.json + transforms_test.json: the split files decide the test set;
+///     with one transforms.json every 8th frame (0, 8, 16, ...) is held out;
+///   - a COLMAP sparse model: sparse/0/ (or sparse/) with cameras and images .bin or .txt,
+///     photos in images/, optional masks in masks/NAME.png; every 8th image in name order
+///     (0, 8, 16, ...) is held out.
+///
+/// Photos through a lens with distortion (OPENCV, OPENCV_FISHEYE, RADIAL, ...) are
+/// undistorted once at load; photos larger than --max-side are downscaled; black mask
+/// pixels give no loss and do not count in evaluation. The mesh (glb, gltf, obj or ply) may
+/// lack UVs: an atlas is generated and written into the asset. Before training, the mesh's
+/// silhouette is checked against the photos' alpha or masks (or COLMAP's sparse points).
 ///
 /// Examples:
 ///   dnr-bake samples/capture -o sample.glb --preset fast
 ///   dnr-bake capture/ -o asset.glb --time-budget 600 --report report.json
+///   dnr-bake colmap_project/ -o asset.glb --mesh dense/0/meshed-poisson.ply
+///   dnr-bake ns_data/ -o asset.glb --mesh poisson.ply --mesh-space reconstruction
 ///   dnr-bake capture/ -o asset.glb --mesh proxy.obj --arch none      (texture only)
 #[derive(Parser, Debug)]
 #[command(name = "dnr-bake", version, verbatim_doc_comment)]
 struct Args {
-    /// Capture folder (transforms.json or transforms_{train,test}.json, images, mesh).
+    /// Capture folder (transforms.json, transforms_{train,test}.json or a COLMAP sparse/
+    /// model; images; mesh).
     capture: PathBuf,
     /// Output asset (.glb). Written to a temporary file and renamed when complete.
     #[arg(short, long)]
@@ -41,9 +55,34 @@ struct Args {
     /// --no-sh, --arch, --widths, --steps) or --resume selects balanced instead.
     #[arg(long)]
     preset: Option<Preset>,
-    /// Proxy mesh (.glb/.gltf/.obj/.ply) instead of the capture's.
+    /// Proxy mesh (.glb/.gltf/.obj/.ply) instead of the capture's (mesh_path, else mesh.glb,
+    /// mesh.gltf, mesh.obj, mesh.ply, and for COLMAP dense/0/meshed-poisson.ply ...).
     #[arg(long)]
     mesh: Option<PathBuf>,
+    /// Longest image side after loading: larger photos are downscaled with an area filter
+    /// and their intrinsics scaled (0 keeps every photo at its size).
+    #[arg(long, value_name = "PIXELS", default_value_t = dnr_bake::capture::DEFAULT_MAX_SIDE)]
+    max_side: u32,
+    /// UVs of the mesh: auto (generate an atlas when the mesh has none or they overlap on
+    /// more than 1% of their area), keep (use the mesh's, fail without), generate (always).
+    #[arg(long, value_name = "MODE", default_value = "auto")]
+    uv: dnr_bake::capture::UvMode,
+    /// With nerfstudio's applied_transform: whether the mesh is in the poses' coordinates
+    /// (poses) or the original reconstruction's (reconstruction: applied_transform is
+    /// applied to it, e.g. a COLMAP or Metashape mesh); auto picks the placement whose
+    /// silhouettes match the photos.
+    #[arg(long, value_name = "SPACE", default_value = "auto")]
+    mesh_space: dnr_bake::capture::MeshSpace,
+    /// Train even when the mesh's silhouette does not line up with the photos.
+    #[arg(long)]
+    skip_alignment_check: bool,
+    /// Drop training views that fail the alignment check alone (a wrong pose, a bad mask)
+    /// instead of stopping.
+    #[arg(long)]
+    drop_misaligned: bool,
+    /// List the transforms keys that were not used and the time of each load step.
+    #[arg(long)]
+    verbose: bool,
     /// Side of the finest texture level in texels.
     #[arg(long)]
     resolution: Option<u32>,
@@ -125,7 +164,8 @@ struct Args {
     json: bool,
     /// Raise (or lower) a capture size limit, NAME=VALUE; repeatable. Names: max_frames
     /// (default 10000), max_image_side (8192), max_total_pixels (2^28), max_json_bytes,
-    /// max_mesh_bytes, max_triangles (20000000).
+    /// max_mesh_bytes, max_model_bytes (COLMAP files), max_triangles (20000000),
+    /// max_unwrap_triangles (2000000, meshes that get generated UVs).
     #[arg(long = "limit", value_name = "NAME=VALUE")]
     limits: Vec<String>,
 }
@@ -250,6 +290,16 @@ fn run(a: Args) -> Result<()> {
         checkpoint_every: a.checkpoint_every,
         write_f32: a.write_f32.clone(),
         write_unpruned: a.write_unpruned.clone(),
+        input: dnr_bake::capture::InputOptions {
+            max_side: a.max_side,
+            uv: a.uv,
+            mesh_space: a.mesh_space,
+            alignment: dnr_bake::capture::alignment::AlignmentOptions {
+                skip: a.skip_alignment_check,
+                drop_misaligned: a.drop_misaligned,
+            },
+            verbose: a.verbose,
+        },
     };
     let summary = bake(&cfg, &opts).with_context(|| format!("baking {}", a.capture.display()))?;
     if a.json {

@@ -66,15 +66,23 @@ fn malformed_json_gives_line_and_column() {
 }
 
 #[test]
-fn mesh_without_uvs_is_refused() {
+fn mesh_without_uvs_is_refused_with_uv_keep_and_unwrapped_otherwise() {
     let dir = simple_capture(2, 8);
     std::fs::write(dir.path().join("mesh.obj"), quad_obj(false)).unwrap();
-    let (e, msg) = load_err(dir.path());
+    let keep = LoadOptions {
+        uv: dnr_bake::capture::UvMode::Keep,
+        ..Default::default()
+    };
+    let (e, msg) = load_err_with(dir.path(), &keep);
     assert!(matches!(e, CaptureError::MeshNoUvs { .. }), "{msg}");
     assert!(
-        msg.contains("mesh.obj") && msg.contains("UVs are required for now"),
+        msg.contains("mesh.obj") && msg.contains("--uv auto generates"),
         "{msg}"
     );
+    let cap = Capture::load(dir.path(), &LoadOptions::default()).unwrap();
+    assert!(cap.uv.generated && cap.uv.charts == Some(1), "{:?}", cap.uv);
+    let p = &cap.mesh.primitives[0];
+    assert_eq!(p.uvs.len(), p.positions.len());
 }
 
 #[test]
@@ -343,11 +351,11 @@ fn bad_last_row_and_unsupported_camera_model() {
     assert!(msg.contains("frames[1].transform_matrix[3]"), "{msg}");
     edit_json(&path, |v| {
         v["frames"][1]["transform_matrix"][3] = json!([0, 0, 0, 1]);
-        v["camera_model"] = json!("OPENCV_FISHEYE");
+        v["camera_model"] = json!("EQUIRECTANGULAR");
     });
     let (_, msg) = load_err(dir.path());
     assert!(
-        msg.contains("transforms.json: camera_model") && msg.contains("OPENCV_FISHEYE"),
+        msg.contains("transforms.json: camera_model") && msg.contains("EQUIRECTANGULAR"),
         "{msg}"
     );
 }

@@ -154,6 +154,7 @@ fn view(r: &mut ChaCha8Rng, w: usize, h: usize) -> View {
             })
             .collect(),
         has_alpha: true,
+        valid: None,
     }
 }
 

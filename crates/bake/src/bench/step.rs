@@ -65,6 +65,7 @@ pub fn synthetic_view(size: usize, seed: u64) -> View {
         target: (0..3 * n).map(|_| r.random::<f32>()).collect(),
         alpha,
         has_alpha: true,
+        valid: None,
     }
 }
 

@@ -37,8 +37,8 @@ pub enum CaptureError {
         /// What is wrong with it.
         message: String,
     },
-    /// The folder holds neither `transforms.json` nor `transforms_train.json`.
-    #[error("{dir}: no transforms.json or transforms_train.json in the capture folder", dir = .dir.display())]
+    /// The folder holds neither `transforms.json`, `transforms_train.json` nor a COLMAP model.
+    #[error("{dir}: no transforms.json, transforms_train.json or COLMAP model (sparse/0/ or sparse/ with cameras and images .bin or .txt) in the capture folder", dir = .dir.display())]
     NoTransforms {
         /// The capture folder.
         dir: PathBuf,
@@ -148,7 +148,7 @@ pub enum CaptureError {
         message: String,
     },
     /// The mesh (or one of its primitives) has no texture coordinates.
-    #[error("{path}: {what} has no texture coordinates (UVs are required for now)", path = .path.display())]
+    #[error("{path}: {what} has no texture coordinates (--uv keep); --uv auto generates an atlas", path = .path.display())]
     MeshNoUvs {
         /// The mesh file.
         path: PathBuf,
@@ -167,6 +167,43 @@ pub enum CaptureError {
         /// The mesh file.
         path: PathBuf,
         /// Which limit.
+        message: String,
+    },
+    /// A COLMAP model file is malformed or uses an unsupported camera model.
+    #[error("{path}: {location}: {message}", path = .path.display())]
+    Colmap {
+        /// The model file.
+        path: PathBuf,
+        /// Where: `camera 3`, `image 12`, `line 7` or `byte 1024`.
+        location: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A frame's image or mask is unusable (missing, or of the wrong size), named with the
+    /// frame it belongs to.
+    #[error("{path}: {frame}: {message}", path = .path.display())]
+    Frame {
+        /// The file that lists the frame (transforms file or COLMAP images file).
+        path: PathBuf,
+        /// The frame: `frames[3]` or `image 12 (IMG_0012.JPG)`.
+        frame: String,
+        /// What is wrong, naming the image or mask file.
+        message: String,
+    },
+    /// The proxy mesh does not line up with the photographs (see `capture::alignment`).
+    #[error("{dir}: alignment check: {message}", dir = .dir.display())]
+    Misaligned {
+        /// The capture folder.
+        dir: PathBuf,
+        /// The figures, the likely cause and the worst frames.
+        message: String,
+    },
+    /// A texture atlas could not be generated for the mesh.
+    #[error("{path}: generating UVs: {message}", path = .path.display())]
+    UvAtlas {
+        /// The mesh file.
+        path: PathBuf,
+        /// What the unwrapper said.
         message: String,
     },
 }

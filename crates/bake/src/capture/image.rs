@@ -18,10 +18,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use dnr_runtime::camera::Camera;
-
 use super::error::CaptureError;
-use super::transforms::Distortion;
 
 /// Extensions tried, in order, for a `file_path` that names no existing file.
 pub const TRIED_EXTENSIONS: [&str; 8] = ["png", "jpg", "jpeg", "exr", "PNG", "JPG", "JPEG", "EXR"];
@@ -310,59 +307,33 @@ pub fn srgb_to_linear(x: f32) -> f32 {
     y.clamp(0.0, 1.0) as f32
 }
 
-/// Resamples a distorted photograph to the ideal pinhole `camera` (same intrinsics, same
-/// size): each output pixel centre is pushed through the OpenCV forward model and the source
-/// is sampled bilinearly there (clamped at the border), with colour premultiplied by alpha
-/// while interpolating so the background does not bleed into the object.
-pub(crate) fn undistort(img: &DecodedImage, camera: &Camera, d: &Distortion) -> DecodedImage {
-    let (w, h) = (img.width as usize, img.height as usize);
-    let mut rgb = vec![0.0f32; w * h * 3];
-    let mut alpha = vec![0.0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let xn = (x as f32 + 0.5 - camera.cx) / camera.fx;
-            let yn = (y as f32 + 0.5 - camera.cy) / camera.fy;
-            let (xd, yd) = d.distort(xn, yn);
-            // Back to index space (pixel centres at integers).
-            let sx = (camera.fx * xd + camera.cx - 0.5).clamp(0.0, (w - 1) as f32);
-            let sy = (camera.fy * yd + camera.cy - 0.5).clamp(0.0, (h - 1) as f32);
-            let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
-            let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-            let (fx, fy) = (sx - x0 as f32, sy - y0 as f32);
-            let taps = [
-                (x0, y0, (1.0 - fx) * (1.0 - fy)),
-                (x1, y0, fx * (1.0 - fy)),
-                (x0, y1, (1.0 - fx) * fy),
-                (x1, y1, fx * fy),
-            ];
-            let mut acc = [0.0f32; 4];
-            for (tx, ty, wt) in taps {
-                let i = ty * w + tx;
-                let a = img.alpha[i];
-                for (c, v) in acc.iter_mut().zip(&img.rgb[i * 3..i * 3 + 3]) {
-                    *c += wt * a * v;
-                }
-                acc[3] += wt * a;
-            }
-            let o = y * w + x;
-            alpha[o] = acc[3];
-            for c in 0..3 {
-                rgb[o * 3 + c] = if acc[3] > 1e-6 {
-                    (acc[c] / acc[3]).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-            }
-        }
+/// Decodes a mask image (PNG or JPEG, any channel layout) to one value per pixel in [0, 1]:
+/// the luma of its colour (nerfstudio and COLMAP masks are grey: black means ignore). The
+/// size is checked against `max_side` from the header first.
+pub fn decode_mask(path: &Path, max_side: u32) -> Result<(u32, u32, Vec<f32>), CaptureError> {
+    let (kind, w, h) = probe(path)?;
+    check_side(path, w, h, max_side)?;
+    if kind == ImageKind::Exr {
+        return Err(decode_err(path, "masks must be PNG or JPEG, not EXR"));
     }
-    DecodedImage {
-        width: img.width,
-        height: img.height,
-        rgb,
-        alpha,
-        has_alpha: img.has_alpha,
-        non_finite: img.non_finite,
-    }
+    let mut reader = image::ImageReader::open(path)
+        .map_err(|e| CaptureError::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| CaptureError::io(path, e))?;
+    let mut limits = image::Limits::no_limits();
+    limits.max_image_width = Some(max_side);
+    limits.max_image_height = Some(max_side);
+    reader.limits(limits);
+    let img = reader.decode().map_err(|e| decode_err(path, e))?;
+    let luma = img.to_luma32f();
+    Ok((
+        luma.width(),
+        luma.height(),
+        luma.into_raw()
+            .into_iter()
+            .map(|v| v.clamp(0.0, 1.0))
+            .collect(),
+    ))
 }
 
 #[cfg(test)]

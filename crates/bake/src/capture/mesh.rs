@@ -1,6 +1,7 @@
-//! Proxy mesh loading: glTF/GLB through `dnr_runtime::scene::load_gltf`, plus small Wavefront
-//! OBJ and PLY readers, all giving a [`Scene`] whose UVs follow the glTF convention
-//! ((0, 0) is the top-left of the texture, v grows downwards).
+//! Proxy mesh loading: glTF/GLB through `dnr_runtime::scene::load_gltf`, plus Wavefront OBJ
+//! (`obj.rs`) and PLY (`ply.rs`) readers, all giving a [`Scene`] whose UVs, when the file has
+//! them, follow the glTF convention ((0, 0) is the top-left of the texture, v grows
+//! downwards). A primitive without UVs has an empty `uvs`; `uv_atlas` generates them.
 //!
 //! OBJ `vt` and PLY `s,t`/`u,v` use the OpenGL convention (v grows upwards, as Blender and
 //! MeshLab write them), so their v is flipped: `v' = 1 - v`.
@@ -12,6 +13,8 @@ use dnr_runtime::scene::{Primitive, Scene};
 use glam::{Vec2, Vec3};
 
 use super::error::CaptureError;
+pub use super::obj::parse_obj;
+pub use super::ply::parse_ply;
 
 /// Size limits for mesh files, checked before large allocations.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -20,6 +23,9 @@ pub struct MeshLimits {
     pub max_file_bytes: u64,
     /// Most triangles (after fan triangulation of polygons).
     pub max_triangles: usize,
+    /// Most triangles of a mesh that gets a generated UV atlas (unwrapping time grows with
+    /// them; about 5 s per million triangles on 2 cores).
+    pub max_unwrap_triangles: usize,
 }
 
 impl Default for MeshLimits {
@@ -27,13 +33,14 @@ impl Default for MeshLimits {
         MeshLimits {
             max_file_bytes: 2 << 30,
             max_triangles: 20_000_000,
+            max_unwrap_triangles: 2_000_000,
         }
     }
 }
 
 /// Loads a proxy mesh by extension (case-insensitive): `.glb`/`.gltf`, `.obj` or `.ply`.
-/// The result is checked: at least one triangle, UVs on every primitive, finite positions
-/// and UVs, indices in range.
+/// The result is checked: at least one triangle, finite positions and UVs, indices in range,
+/// UVs on every vertex of a primitive or on none.
 pub fn load_mesh(path: &Path, limits: &MeshLimits) -> Result<Scene, CaptureError> {
     let ext = path
         .extension()
@@ -70,7 +77,7 @@ pub fn load_mesh(path: &Path, limits: &MeshLimits) -> Result<Scene, CaptureError
     Ok(scene)
 }
 
-fn check_file_size(path: &Path, limits: &MeshLimits) -> Result<(), CaptureError> {
+pub(crate) fn check_file_size(path: &Path, limits: &MeshLimits) -> Result<(), CaptureError> {
     let len = std::fs::metadata(path)
         .map_err(|e| CaptureError::io(path, e))?
         .len();
@@ -86,7 +93,7 @@ fn check_file_size(path: &Path, limits: &MeshLimits) -> Result<(), CaptureError>
     Ok(())
 }
 
-fn read_limited(path: &Path, limits: &MeshLimits) -> Result<Vec<u8>, CaptureError> {
+pub(crate) fn read_limited(path: &Path, limits: &MeshLimits) -> Result<Vec<u8>, CaptureError> {
     check_file_size(path, limits)?;
     std::fs::read(path).map_err(|e| CaptureError::io(path, e))
 }
@@ -112,12 +119,6 @@ fn validate(path: &Path, scene: &Scene, limits: &MeshLimits) -> Result<(), Captu
         if p.indices.is_empty() {
             continue;
         }
-        if p.uvs.len() != p.positions.len() {
-            return Err(CaptureError::MeshNoUvs {
-                path: path.to_path_buf(),
-                what,
-            });
-        }
         let bad = |message: String| CaptureError::MeshParse {
             path: path.to_path_buf(),
             location: what.clone(),
@@ -135,6 +136,13 @@ fn validate(path: &Path, scene: &Scene, limits: &MeshLimits) -> Result<(), Captu
                 p.positions.len()
             )));
         }
+        if !p.uvs.is_empty() && p.uvs.len() != p.positions.len() {
+            return Err(bad(format!(
+                "{} texture coordinates for {} vertices",
+                p.uvs.len(),
+                p.positions.len()
+            )));
+        }
         if let Some(i) = p.positions.iter().position(|v| !v.is_finite()) {
             return Err(bad(format!("vertex {i} has a non-finite position")));
         }
@@ -147,172 +155,82 @@ fn validate(path: &Path, scene: &Scene, limits: &MeshLimits) -> Result<(), Captu
     Ok(())
 }
 
-fn too_many_triangles(path: &Path, limits: &MeshLimits) -> CaptureError {
+pub(crate) fn too_many_triangles(path: &Path, limits: &MeshLimits) -> CaptureError {
     CaptureError::MeshTooLarge {
         path: path.to_path_buf(),
         message: format!("more than {} triangles", limits.max_triangles),
     }
 }
 
-/// Welds (position index, uv key) corners into output vertices.
-struct Welder {
-    map: HashMap<(u32, u64), u32>,
+/// Welds (position index, uv key) corners into output vertices. Corners without a UV are
+/// allowed: if any corner lacks one, [`Welder::finish`] drops every UV and welds by position
+/// alone (the mesh then gets a generated atlas).
+pub(crate) struct Welder {
+    map: HashMap<(u32, Option<u64>), u32>,
     prim: Primitive,
+    /// Input position index of each output vertex.
+    source: Vec<u32>,
+    missing_uv: bool,
 }
 
 impl Welder {
-    fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Welder {
             map: HashMap::new(),
             prim: Primitive::default(),
+            source: Vec::new(),
+            missing_uv: false,
         }
     }
 
-    /// `uv` is already in glTF convention; `key` identifies it (an index or the bit pattern).
-    fn vertex(&mut self, pos_index: u32, pos: Vec3, key: u64, uv: Vec2) -> u32 {
+    /// `uv` is `(key, uv)` with the uv already in glTF convention and `key` identifying it
+    /// (an index or the bit pattern), or None for a corner without one.
+    pub(crate) fn vertex(&mut self, pos_index: u32, pos: Vec3, uv: Option<(u64, Vec2)>) -> u32 {
+        self.missing_uv |= uv.is_none();
         let prim = &mut self.prim;
-        *self.map.entry((pos_index, key)).or_insert_with(|| {
-            prim.positions.push(pos);
-            prim.uvs.push(uv);
-            (prim.positions.len() - 1) as u32
-        })
+        let source = &mut self.source;
+        *self
+            .map
+            .entry((pos_index, uv.map(|u| u.0)))
+            .or_insert_with(|| {
+                prim.positions.push(pos);
+                prim.uvs.push(uv.map_or(Vec2::ZERO, |u| u.1));
+                source.push(pos_index);
+                (prim.positions.len() - 1) as u32
+            })
     }
-}
 
-/// Parses Wavefront OBJ text: `v`, `vt`, `vn` and `f` (forms `v`, `v/vt`, `v/vt/vn`,
-/// `v//vn`; negative indices count back from the latest vertex; polygons are fan
-/// triangulated). Other statements (groups, materials, lines) are ignored. Every face
-/// corner needs a `vt` index.
-pub fn parse_obj(path: &Path, text: &str, limits: &MeshLimits) -> Result<Primitive, CaptureError> {
-    let mut positions: Vec<Vec3> = Vec::new();
-    let mut texcoords: Vec<Vec2> = Vec::new();
-    let mut normals = 0usize;
-    let mut welder = Welder::new();
-    let mut corners: Vec<u32> = Vec::new();
-    let mut lines = text.lines().enumerate();
-    let mut joined = String::new();
-    while let Some((i, raw)) = lines.next() {
-        let line_no = i + 1;
-        let err = |message: String| CaptureError::MeshParse {
-            path: path.to_path_buf(),
-            location: format!("line {line_no}"),
-            message,
-        };
-        // Backslash continues a statement on the next line.
-        joined.clear();
-        joined.push_str(raw);
-        while joined.trim_end().ends_with('\\') {
-            let t = joined.trim_end().len() - 1;
-            joined.truncate(t);
-            joined.push(' ');
-            match lines.next() {
-                Some((_, next)) => joined.push_str(next),
-                None => break,
-            }
+    /// Triangle indices so far.
+    pub(crate) fn indices(&mut self) -> &mut Vec<u32> {
+        &mut self.prim.indices
+    }
+
+    /// The primitive; without UVs (welded by position) when some corner had none.
+    pub(crate) fn finish(self) -> Primitive {
+        if !self.missing_uv {
+            return self.prim;
         }
-        let content = joined.split('#').next().unwrap_or("");
-        let mut toks = content.split_whitespace();
-        let Some(keyword) = toks.next() else { continue };
-        match keyword {
-            "v" => {
-                let v =
-                    parse_floats::<3>(&mut toks).ok_or_else(|| err("expected `v x y z`".into()))?;
-                let v = Vec3::from_array(v);
-                if !v.is_finite() {
-                    return Err(err(format!("vertex has a non-finite position {v}")));
-                }
-                positions.push(v);
-            }
-            "vt" => {
-                let u = toks.next().and_then(|t| t.parse::<f32>().ok());
-                let v = match toks.next() {
-                    None => Some(0.0),
-                    Some(t) => t.parse::<f32>().ok(),
-                };
-                match (u, v) {
-                    (Some(u), Some(v)) if !(u.is_finite() && v.is_finite()) => {
-                        return Err(err(format!(
-                            "vertex has a non-finite texture coordinate ({u}, {v})"
-                        )));
-                    }
-                    (Some(u), Some(v)) => texcoords.push(Vec2::new(u, 1.0 - v)),
-                    _ => return Err(err("expected `vt u [v]`".into())),
-                }
-            }
-            "vn" => {
-                parse_floats::<3>(&mut toks).ok_or_else(|| err("expected `vn x y z`".into()))?;
-                normals += 1;
-            }
-            "f" => {
-                corners.clear();
-                for tok in toks {
-                    let mut parts = tok.split('/');
-                    let vi = parts.next().unwrap_or("");
-                    let ti = parts.next().unwrap_or("");
-                    let ni = parts.next().unwrap_or("");
-                    if parts.next().is_some() {
-                        return Err(err(format!("bad face corner {tok:?}")));
-                    }
-                    let vi = resolve_index(vi, positions.len())
-                        .map_err(|m| err(format!("face corner {tok:?}: vertex index {m}")))?;
-                    if !ni.is_empty() {
-                        resolve_index(ni, normals)
-                            .map_err(|m| err(format!("face corner {tok:?}: normal index {m}")))?;
-                    }
-                    if ti.is_empty() {
-                        return Err(CaptureError::MeshNoUvs {
-                            path: path.to_path_buf(),
-                            what: format!("face at line {line_no}"),
-                        });
-                    }
-                    let ti = resolve_index(ti, texcoords.len()).map_err(|m| {
-                        err(format!("face corner {tok:?}: texture coordinate index {m}"))
-                    })?;
-                    let v = welder.vertex(vi as u32, positions[vi], ti as u64, texcoords[ti]);
-                    corners.push(v);
-                }
-                if corners.len() < 3 {
-                    return Err(err(format!(
-                        "face with {} corners (at least 3 needed)",
-                        corners.len()
-                    )));
-                }
-                push_fan(&mut welder.prim.indices, &corners, limits)
-                    .ok_or_else(|| too_many_triangles(path, limits))?;
-            }
-            _ => {}
+        let mut remap: HashMap<u32, u32> = HashMap::new();
+        let mut out = Primitive::default();
+        let mut new_index = vec![0u32; self.prim.positions.len()];
+        for (v, &src) in self.source.iter().enumerate() {
+            new_index[v] = *remap.entry(src).or_insert_with(|| {
+                out.positions.push(self.prim.positions[v]);
+                (out.positions.len() - 1) as u32
+            });
         }
+        out.indices = self
+            .prim
+            .indices
+            .iter()
+            .map(|&i| new_index[i as usize])
+            .collect();
+        out
     }
-    if welder.prim.indices.is_empty() {
-        return Err(CaptureError::MeshEmpty {
-            path: path.to_path_buf(),
-        });
-    }
-    Ok(welder.prim)
-}
-
-fn parse_floats<'a, const N: usize>(toks: &mut impl Iterator<Item = &'a str>) -> Option<[f32; N]> {
-    let mut out = [0.0f32; N];
-    for o in out.iter_mut() {
-        *o = toks.next()?.parse().ok()?;
-    }
-    Some(out)
-}
-
-/// OBJ index (1-based, or negative from the end) to a 0-based index below `len`.
-fn resolve_index(tok: &str, len: usize) -> Result<usize, String> {
-    let i: i64 = tok
-        .parse()
-        .map_err(|_| format!("{tok:?} is not an integer"))?;
-    let r = if i > 0 { i - 1 } else { len as i64 + i };
-    if i == 0 || r < 0 || r >= len as i64 {
-        return Err(format!("{i} out of range ({len} defined so far)"));
-    }
-    Ok(r as usize)
 }
 
 /// Fan-triangulates a convex polygon's corners; `None` when over the triangle limit.
-fn push_fan(indices: &mut Vec<u32>, corners: &[u32], limits: &MeshLimits) -> Option<()> {
+pub(crate) fn push_fan(indices: &mut Vec<u32>, corners: &[u32], limits: &MeshLimits) -> Option<()> {
     if indices.len() / 3 + corners.len() - 2 > limits.max_triangles {
         return None;
     }
@@ -322,480 +240,20 @@ fn push_fan(indices: &mut Vec<u32>, corners: &[u32], limits: &MeshLimits) -> Opt
     Some(())
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum PlyFormat {
-    Ascii,
-    Little,
-    Big,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Scalar {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    F32,
-    F64,
-}
-
-impl Scalar {
-    fn parse(s: &str) -> Option<Scalar> {
-        Some(match s {
-            "char" | "int8" => Scalar::I8,
-            "uchar" | "uint8" => Scalar::U8,
-            "short" | "int16" => Scalar::I16,
-            "ushort" | "uint16" => Scalar::U16,
-            "int" | "int32" => Scalar::I32,
-            "uint" | "uint32" => Scalar::U32,
-            "float" | "float32" => Scalar::F32,
-            "double" | "float64" => Scalar::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Scalar::I8 | Scalar::U8 => 1,
-            Scalar::I16 | Scalar::U16 => 2,
-            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
-            Scalar::F64 => 8,
-        }
-    }
-}
-
-#[derive(Clone, Debug)]
-enum PlyProperty {
-    Scalar {
-        name: String,
-        ty: Scalar,
-    },
-    List {
-        name: String,
-        count: Scalar,
-        item: Scalar,
-    },
-}
-
-#[derive(Clone, Debug)]
-struct PlyElement {
-    name: String,
-    count: usize,
-    props: Vec<PlyProperty>,
-}
-
-/// Reads values of a PLY body one at a time, ascii (one record per line) or binary.
-struct PlyBody<'a> {
-    format: PlyFormat,
-    bytes: &'a [u8],
-    pos: usize,
-    line: usize,
-    tokens: std::vec::IntoIter<&'a str>,
-}
-
-impl<'a> PlyBody<'a> {
-    /// Starts a record (ascii: reads its line).
-    fn begin_record(&mut self) -> Result<(), String> {
-        if self.format != PlyFormat::Ascii {
-            return Ok(());
-        }
-        if self.tokens.len() != 0 {
-            return Err("extra values at the end of the previous record".into());
-        }
-        loop {
-            if self.pos >= self.bytes.len() {
-                return Err("unexpected end of file".into());
-            }
-            let end = self.bytes[self.pos..]
-                .iter()
-                .position(|&b| b == b'\n')
-                .map_or(self.bytes.len(), |e| self.pos + e);
-            let line = std::str::from_utf8(&self.bytes[self.pos..end])
-                .map_err(|_| "not UTF-8 text".to_string())?;
-            self.pos = end + 1;
-            self.line += 1;
-            let toks: Vec<&'a str> = line.split_whitespace().collect();
-            if !toks.is_empty() {
-                self.tokens = toks.into_iter();
-                return Ok(());
-            }
-        }
-    }
-
-    fn value(&mut self, ty: Scalar) -> Result<f64, String> {
-        if self.format == PlyFormat::Ascii {
-            let t = self.tokens.next().ok_or("too few values in the record")?;
-            return t
-                .parse::<f64>()
-                .map_err(|_| format!("{t:?} is not a number"));
-        }
-        let n = ty.size();
-        let b = self
-            .bytes
-            .get(self.pos..self.pos + n)
-            .ok_or("unexpected end of file")?;
-        self.pos += n;
-        let mut a = [0u8; 8];
-        a[..n].copy_from_slice(b);
-        if self.format == PlyFormat::Big {
-            a[..n].reverse();
-        }
-        Ok(match ty {
-            Scalar::I8 => a[0] as i8 as f64,
-            Scalar::U8 => a[0] as f64,
-            Scalar::I16 => i16::from_le_bytes([a[0], a[1]]) as f64,
-            Scalar::U16 => u16::from_le_bytes([a[0], a[1]]) as f64,
-            Scalar::I32 => i32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-            Scalar::U32 => u32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-            Scalar::F32 => f32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-            Scalar::F64 => f64::from_le_bytes(a),
-        })
-    }
-
-    fn location(&self, element: &str, index: usize) -> String {
-        match self.format {
-            PlyFormat::Ascii => format!("line {}", self.line),
-            _ => format!("element {element}[{index}]"),
-        }
-    }
-}
-
-/// UV property name pairs accepted on PLY vertices, in order of preference.
-const PLY_UV_NAMES: [(&str, &str); 4] = [
-    ("s", "t"),
-    ("u", "v"),
-    ("texture_u", "texture_v"),
-    ("texture_s", "texture_t"),
-];
-
-/// Parses a PLY file (ascii, binary little- or big-endian): vertex `x, y, z` plus UVs as
-/// `s, t`, `u, v`, `texture_u, texture_v` or `texture_s, texture_t`, or per-corner UVs as a
-/// face list property `texcoord`; faces from the list `vertex_indices` (or `vertex_index`),
-/// fan triangulated. Other elements and properties are skipped.
-pub fn parse_ply(
-    path: &Path,
-    bytes: &[u8],
-    limits: &MeshLimits,
-) -> Result<Primitive, CaptureError> {
-    let perr = |location: String, message: String| CaptureError::MeshParse {
-        path: path.to_path_buf(),
-        location,
-        message,
-    };
-    // Header: text lines up to `end_header`.
-    let mut pos = 0usize;
-    let mut line_no = 0usize;
-    let mut format = None;
-    let mut elements: Vec<PlyElement> = Vec::new();
-    loop {
-        let end = bytes[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map(|e| pos + e)
-            .ok_or_else(|| {
-                perr(
-                    format!("line {}", line_no + 1),
-                    "header has no end_header line".into(),
-                )
-            })?;
-        line_no += 1;
-        let here = format!("line {line_no}");
-        let line = std::str::from_utf8(&bytes[pos..end])
-            .map_err(|_| perr(here.clone(), "header is not text".into()))?;
-        let line = line.trim_end_matches('\r').trim();
-        pos = end + 1;
-        let toks: Vec<&str> = line.split_whitespace().collect();
-        if line_no == 1 {
-            if line != "ply" {
-                return Err(perr(
-                    here,
-                    "not a PLY file (first line must be `ply`)".into(),
-                ));
-            }
-            continue;
-        }
-        match toks.first().copied() {
-            Some("format") => {
-                format = Some(match toks.get(1).copied() {
-                    Some("ascii") => PlyFormat::Ascii,
-                    Some("binary_little_endian") => PlyFormat::Little,
-                    Some("binary_big_endian") => PlyFormat::Big,
-                    other => return Err(perr(here, format!("unknown format {other:?}"))),
-                });
-            }
-            Some("element") => {
-                let (Some(name), Some(count)) = (
-                    toks.get(1),
-                    toks.get(2).and_then(|c| c.parse::<usize>().ok()),
-                ) else {
-                    return Err(perr(here, "expected `element NAME COUNT`".into()));
-                };
-                elements.push(PlyElement {
-                    name: name.to_string(),
-                    count,
-                    props: Vec::new(),
-                });
-            }
-            Some("property") => {
-                let el = elements
-                    .last_mut()
-                    .ok_or_else(|| perr(here.clone(), "property before any element".into()))?;
-                let prop = if toks.get(1) == Some(&"list") {
-                    match (
-                        toks.get(2).and_then(|t| Scalar::parse(t)),
-                        toks.get(3).and_then(|t| Scalar::parse(t)),
-                        toks.get(4),
-                    ) {
-                        (Some(count), Some(item), Some(name)) => PlyProperty::List {
-                            name: name.to_string(),
-                            count,
-                            item,
-                        },
-                        _ => {
-                            return Err(perr(
-                                here,
-                                "expected `property list COUNT_TYPE ITEM_TYPE NAME`".into(),
-                            ))
-                        }
-                    }
-                } else {
-                    match (toks.get(1).and_then(|t| Scalar::parse(t)), toks.get(2)) {
-                        (Some(ty), Some(name)) => PlyProperty::Scalar {
-                            name: name.to_string(),
-                            ty,
-                        },
-                        _ => return Err(perr(here, "expected `property TYPE NAME`".into())),
-                    }
-                };
-                el.props.push(prop);
-            }
-            Some("end_header") => break,
-            Some("comment") | Some("obj_info") | None => {}
-            Some(other) => return Err(perr(here, format!("unknown header keyword {other:?}"))),
-        }
-    }
-    let format = format.ok_or_else(|| perr("header".into(), "missing `format` line".into()))?;
-
-    // Counts are checked against the limits and the bytes left before anything is allocated.
-    let remaining = bytes.len() - pos;
-    for el in &elements {
-        let min_record = match format {
-            PlyFormat::Ascii => 2,
-            _ => el
-                .props
-                .iter()
-                .map(|p| match p {
-                    PlyProperty::Scalar { ty, .. } => ty.size(),
-                    PlyProperty::List { count, .. } => count.size(),
-                })
-                .sum::<usize>(),
-        };
-        let too_many = (el.name == "face" && el.count > limits.max_triangles)
-            || (el.name == "vertex" && el.count > limits.max_triangles.saturating_mul(3));
-        if too_many {
-            return Err(CaptureError::MeshTooLarge {
-                path: path.to_path_buf(),
-                message: format!("element {} count {} over the limit", el.name, el.count),
-            });
-        }
-        if el.count.saturating_mul(min_record) > remaining {
-            return Err(perr(
-                "header".into(),
-                format!(
-                    "element {} count {} does not fit in the file",
-                    el.name, el.count
-                ),
-            ));
-        }
-    }
-
-    let mut body = PlyBody {
-        format,
-        bytes,
-        pos,
-        line: line_no,
-        tokens: Vec::new().into_iter(),
-    };
-    let mut positions: Vec<Vec3> = Vec::new();
-    let mut vertex_uvs: Vec<Vec2> = Vec::new();
-    let mut have_vertex_uvs = false;
-    let mut welder = Welder::new();
-    let mut corners: Vec<u32> = Vec::new();
-    let mut saw_faces_without_uvs = false;
-    for el in &elements {
-        match el.name.as_str() {
-            "vertex" => {
-                let idx = |n: &str| {
-                    el.props
-                        .iter()
-                        .position(|p| matches!(p, PlyProperty::Scalar { name, .. } if name == n))
-                };
-                let (Some(ix), Some(iy), Some(iz)) = (idx("x"), idx("y"), idx("z")) else {
-                    return Err(perr(
-                        "header".into(),
-                        "element vertex needs scalar properties x, y, z".into(),
-                    ));
-                };
-                let uv_idx = PLY_UV_NAMES
-                    .iter()
-                    .find_map(|(a, b)| Some((idx(a)?, idx(b)?)));
-                have_vertex_uvs = uv_idx.is_some();
-                positions.reserve(el.count);
-                vertex_uvs.reserve(if have_vertex_uvs { el.count } else { 0 });
-                let mut vals = vec![0.0f64; el.props.len()];
-                for r in 0..el.count {
-                    let e = |m: String, b: &PlyBody<'_>| perr(b.location("vertex", r), m);
-                    body.begin_record().map_err(|m| e(m, &body))?;
-                    for (k, p) in el.props.iter().enumerate() {
-                        vals[k] = read_property(&mut body, p).map_err(|m| e(m, &body))?;
-                    }
-                    positions.push(Vec3::new(vals[ix] as f32, vals[iy] as f32, vals[iz] as f32));
-                    if let Some((iu, iv)) = uv_idx {
-                        vertex_uvs.push(Vec2::new(vals[iu] as f32, 1.0 - vals[iv] as f32));
-                    }
-                }
-            }
-            "face" => {
-                let list_idx = |n: &str| {
-                    el.props
-                        .iter()
-                        .position(|p| matches!(p, PlyProperty::List { name, .. } if name == n))
-                };
-                let Some(iv) = list_idx("vertex_indices").or_else(|| list_idx("vertex_index"))
-                else {
-                    return Err(perr(
-                        "header".into(),
-                        "element face needs a list property vertex_indices".into(),
-                    ));
-                };
-                let itc = list_idx("texcoord");
-                for r in 0..el.count {
-                    let e = |m: String, b: &PlyBody<'_>| perr(b.location("face", r), m);
-                    body.begin_record().map_err(|m| e(m, &body))?;
-                    let mut verts: Vec<u32> = Vec::new();
-                    let mut tcs: Vec<f32> = Vec::new();
-                    for (k, p) in el.props.iter().enumerate() {
-                        let PlyProperty::List { count, item, .. } = p else {
-                            read_property(&mut body, p).map_err(|m| e(m, &body))?;
-                            continue;
-                        };
-                        let n = body.value(*count).map_err(|m| e(m, &body))?;
-                        if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
-                            return Err(e(format!("bad list length {n}"), &body));
-                        }
-                        for _ in 0..n as usize {
-                            let x = body.value(*item).map_err(|m| e(m, &body))?;
-                            if k == iv {
-                                if !(0.0..positions.len() as f64).contains(&x) || x.fract() != 0.0 {
-                                    return Err(e(
-                                        format!(
-                                            "vertex index {x} out of range ({} vertices)",
-                                            positions.len()
-                                        ),
-                                        &body,
-                                    ));
-                                }
-                                verts.push(x as u32);
-                            } else if Some(k) == itc {
-                                tcs.push(x as f32);
-                            }
-                        }
-                    }
-                    if verts.len() < 3 {
-                        return Err(e(
-                            format!("face with {} corners (at least 3 needed)", verts.len()),
-                            &body,
-                        ));
-                    }
-                    corners.clear();
-                    if tcs.len() == verts.len() * 2 {
-                        for (c, &vi) in verts.iter().enumerate() {
-                            let uv = Vec2::new(tcs[2 * c], 1.0 - tcs[2 * c + 1]);
-                            let key = (uv.x.to_bits() as u64) << 32 | uv.y.to_bits() as u64;
-                            corners.push(welder.vertex(vi, positions[vi as usize], key, uv));
-                        }
-                    } else if have_vertex_uvs {
-                        for &vi in &verts {
-                            corners.push(welder.vertex(
-                                vi,
-                                positions[vi as usize],
-                                0,
-                                vertex_uvs[vi as usize],
-                            ));
-                        }
-                    } else {
-                        saw_faces_without_uvs = true;
-                        continue;
-                    }
-                    push_fan(&mut welder.prim.indices, &corners, limits)
-                        .ok_or_else(|| too_many_triangles(path, limits))?;
-                }
-            }
-            other => {
-                for r in 0..el.count {
-                    let e = |m: String, b: &PlyBody<'_>| perr(b.location(other, r), m);
-                    body.begin_record().map_err(|m| e(m, &body))?;
-                    for p in &el.props {
-                        read_property(&mut body, p).map_err(|m| e(m, &body))?;
-                    }
-                }
-            }
-        }
-    }
-    if saw_faces_without_uvs {
-        return Err(CaptureError::MeshNoUvs {
-            path: path.to_path_buf(),
-            what: "mesh".into(),
-        });
-    }
-    if welder.prim.indices.is_empty() {
-        return Err(CaptureError::MeshEmpty {
-            path: path.to_path_buf(),
-        });
-    }
-    Ok(welder.prim)
-}
-
-/// Reads one property; lists are consumed and their first value is returned (unused).
-fn read_property(body: &mut PlyBody<'_>, p: &PlyProperty) -> Result<f64, String> {
-    match p {
-        PlyProperty::Scalar { ty, .. } => body.value(*ty),
-        PlyProperty::List { count, item, name } => {
-            let n = body.value(*count)?;
-            if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
-                return Err(format!("bad length {n} of list {name}"));
-            }
-            let mut first = 0.0;
-            for i in 0..n as usize {
-                let x = body.value(*item)?;
-                if i == 0 {
-                    first = x;
-                }
-            }
-            Ok(first)
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn obj_index_resolution() {
-        assert_eq!(resolve_index("1", 3), Ok(0));
-        assert_eq!(resolve_index("-1", 3), Ok(2));
-        assert!(resolve_index("0", 3).is_err());
-        assert!(resolve_index("4", 3).is_err());
-        assert!(resolve_index("-4", 3).is_err());
-    }
-
-    #[test]
-    fn ply_scalar_names() {
-        assert_eq!(Scalar::parse("float32"), Some(Scalar::F32));
-        assert_eq!(Scalar::parse("uchar"), Some(Scalar::U8));
-        assert_eq!(Scalar::parse("bogus"), None);
+    fn welder_drops_uvs_when_a_corner_has_none() {
+        let mut w = Welder::new();
+        let a = w.vertex(0, Vec3::ZERO, Some((1, Vec2::ONE)));
+        let b = w.vertex(0, Vec3::ZERO, None);
+        let c = w.vertex(1, Vec3::X, Some((2, Vec2::ZERO)));
+        w.indices().extend([a, b, c]);
+        let p = w.finish();
+        assert!(p.uvs.is_empty());
+        assert_eq!(p.positions.len(), 2);
+        assert_eq!(p.indices, vec![0, 0, 1]);
     }
 }

@@ -1,6 +1,14 @@
 //! `transforms.json` parsing (NeRF / instant-ngp / nerfstudio convention) and camera
 //! intrinsics resolution.
 //!
+//! Keys read, at the top level (`docs/capture-format.md` has their meaning): `camera_model`,
+//! `fl_x`, `fl_y`, `cx`, `cy`, `w`, `h`, `k1`, `k2`, `k3`, `k4`, `p1`, `p2`,
+//! `distortion_params`, `camera_angle_x`, `camera_angle_y`, `is_fisheye`, `aabb_scale`,
+//! `scale`, `offset`, `applied_transform`, `mesh_path`, `frames`; in each frame: `file_path`,
+//! `transform_matrix`, `mask_path` and, overriding the top level key by key, every intrinsic
+//! and lens key above. Every other key is ignored and listed in
+//! [`TransformsFile::ignored_keys`] (`dnr-bake --verbose` prints them).
+//!
 //! The JSON is walked as a `serde_json::Value` so every problem can name its field
 //! (`frames[3].transform_matrix[1][2]`). Python's `json.dump` writes the non-standard tokens
 //! `NaN` and `Infinity`; a file holding them is re-read with those tokens as `null`, so the
@@ -8,43 +16,12 @@
 
 use std::path::{Path, PathBuf};
 
-use dnr_runtime::camera::Camera;
-use glam::Mat4;
+use glam::DMat4;
 use serde_json::{Map, Value};
 
+use super::distortion::{Distortion, LensModel};
 use super::error::CaptureError;
-
-/// OpenCV radial/tangential distortion coefficients (`k1`, `k2`, `k3`, `p1`, `p2`) of a
-/// pinhole camera, applied to normalised image coordinates.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Distortion {
-    /// Radial r^2 coefficient.
-    pub k1: f32,
-    /// Radial r^4 coefficient.
-    pub k2: f32,
-    /// Radial r^6 coefficient (nerfstudio writes it; the capture contract lists k1, k2, p1, p2).
-    pub k3: f32,
-    /// Tangential coefficient p1.
-    pub p1: f32,
-    /// Tangential coefficient p2.
-    pub p2: f32,
-}
-
-impl Distortion {
-    /// True when every coefficient is zero (a plain pinhole camera).
-    pub fn is_identity(&self) -> bool {
-        self.k1 == 0.0 && self.k2 == 0.0 && self.k3 == 0.0 && self.p1 == 0.0 && self.p2 == 0.0
-    }
-
-    /// Maps undistorted normalised coordinates to distorted ones (the OpenCV forward model).
-    pub fn distort(&self, x: f32, y: f32) -> (f32, f32) {
-        let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
-        let xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x);
-        let yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y;
-        (xd, yd)
-    }
-}
+use super::CameraRecord;
 
 /// Intrinsic keys as written at the top level or in one frame; absent keys are `None`.
 #[derive(Clone, Debug, Default)]
@@ -60,8 +37,15 @@ pub(crate) struct RawIntrinsics {
     pub k1: Option<f64>,
     pub k2: Option<f64>,
     pub k3: Option<f64>,
+    pub k4: Option<f64>,
     pub p1: Option<f64>,
     pub p2: Option<f64>,
+    /// `distortion_params`: nerfstudio's `[k1, k2, k3, k4, p1, p2]`.
+    pub distortion_params: Option<[f64; 6]>,
+    /// `camera_model`, checked to be a supported name.
+    pub camera_model: Option<&'static str>,
+    /// instant-ngp's `is_fisheye`.
+    pub is_fisheye: Option<bool>,
 }
 
 impl RawIntrinsics {
@@ -79,8 +63,12 @@ impl RawIntrinsics {
             k1: self.k1.or(top.k1),
             k2: self.k2.or(top.k2),
             k3: self.k3.or(top.k3),
+            k4: self.k4.or(top.k4),
             p1: self.p1.or(top.p1),
             p2: self.p2.or(top.p2),
+            distortion_params: self.distortion_params.or(top.distortion_params),
+            camera_model: self.camera_model.or(top.camera_model),
+            is_fisheye: self.is_fisheye.or(top.is_fisheye),
         }
     }
 }
@@ -92,8 +80,10 @@ pub(crate) struct RawFrame {
     pub index: usize,
     /// `file_path` as written.
     pub file_path: String,
+    /// `mask_path` as written, if any.
+    pub mask_path: Option<String>,
     /// Camera-to-world, validated finite and non-singular.
-    pub cam_to_world: Mat4,
+    pub cam_to_world: DMat4,
     /// Per-frame intrinsic overrides.
     pub intrinsics: RawIntrinsics,
 }
@@ -107,7 +97,68 @@ pub(crate) struct TransformsFile {
     pub frames: Vec<RawFrame>,
     /// Non-fatal remarks (e.g. a non-orthonormal rotation).
     pub warnings: Vec<String>,
+    /// nerfstudio's `applied_transform` (3x4 or 4x4, as a 4x4): what `ns-process-data` applied
+    /// to the original reconstruction's world coordinates to get the poses' ones.
+    pub applied_transform: Option<DMat4>,
+    /// instant-ngp's scene box: `aabb_scale`, `scale` (default 0.33), `offset` (default 0.5
+    /// on every axis).
+    pub ngp_box: Option<NgpBox>,
+    /// Keys this reader does not use: `key` at the top level, `frames[].key (N frames)`.
+    pub ignored_keys: Vec<String>,
 }
+
+/// instant-ngp's scene bounding box keys.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NgpBox {
+    /// `aabb_scale`.
+    pub aabb_scale: f64,
+    /// `scale`.
+    pub scale: f64,
+    /// `offset`.
+    pub offset: [f64; 3],
+}
+
+impl NgpBox {
+    /// The box in the poses' coordinates: instant-ngp maps `p` to `p * scale + offset` and
+    /// trains inside the cube of side `aabb_scale` centred on `(0.5, 0.5, 0.5)` (its axis
+    /// cycling leaves a cube with equal offsets unchanged). Returns `(min, max)`.
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let h = 0.5 * self.aabb_scale;
+        let lo = std::array::from_fn(|k| (0.5 - h - self.offset[k]) / self.scale);
+        let hi = std::array::from_fn(|k| (0.5 + h - self.offset[k]) / self.scale);
+        (lo, hi)
+    }
+}
+
+/// Top-level keys the reader uses.
+const TOP_KEYS: [&str; 23] = [
+    "camera_model",
+    "fl_x",
+    "fl_y",
+    "cx",
+    "cy",
+    "w",
+    "h",
+    "k1",
+    "k2",
+    "k3",
+    "k4",
+    "p1",
+    "p2",
+    "distortion_params",
+    "camera_angle_x",
+    "camera_angle_y",
+    "is_fisheye",
+    "aabb_scale",
+    "scale",
+    "offset",
+    "applied_transform",
+    "mesh_path",
+    "frames",
+];
+
+/// Per-frame keys the reader uses besides the intrinsic and lens keys.
+const FRAME_KEYS: [&str; 3] = ["file_path", "transform_matrix", "mask_path"];
 
 /// Reads and parses a transforms file. `max_bytes` and `max_frames` are checked before the
 /// file body is read and before frames are materialised.
@@ -174,9 +225,17 @@ pub(crate) fn parse_transforms(
         Some(Value::String(s)) => Some(s.clone()),
         Some(_) => return Err(ctx.err("mesh_path", "expected a string")),
     };
-    if let Some(Value::String(model)) = obj.get("camera_model") {
-        check_camera_model(&ctx, "camera_model", model)?;
-    }
+    let applied_transform = match obj.get("applied_transform") {
+        None | Some(Value::Null) => None,
+        Some(v) => Some(read_applied_transform(&ctx, v)?),
+    };
+    let ngp_box = read_ngp_box(&ctx, obj)?;
+    let mut ignored_keys: Vec<String> = obj
+        .keys()
+        .filter(|k| !TOP_KEYS.contains(&k.as_str()))
+        .cloned()
+        .collect();
+    let mut frame_ignored: Vec<(String, usize)> = Vec::new();
     let frames_v = obj
         .get("frames")
         .ok_or_else(|| ctx.err("frames", "missing (expected an array of frames)"))?
@@ -211,25 +270,130 @@ pub(crate) fn parse_transforms(
             Some(_) => return Err(ctx.err(&format!("{field}.file_path"), "expected a string")),
             None => return Err(ctx.err(&format!("{field}.file_path"), "missing")),
         };
-        if let Some(Value::String(model)) = fo.get("camera_model") {
-            check_camera_model(&ctx, &format!("{field}.camera_model"), model)?;
-        }
+        let mask_path = match fo.get("mask_path") {
+            None | Some(Value::Null) => None,
+            Some(Value::String(s)) if !s.is_empty() => Some(s.clone()),
+            Some(_) => {
+                return Err(ctx.err(&format!("{field}.mask_path"), "expected a non-empty string"))
+            }
+        };
         let cam_to_world = read_matrix(&ctx, fo, &field, &mut warnings)?;
         let intrinsics = read_intrinsics(&ctx, fo, &format!("{field}."))?;
+        for k in fo.keys() {
+            if !FRAME_KEYS.contains(&k.as_str()) && !INTRINSIC_KEYS.contains(&k.as_str()) {
+                match frame_ignored.iter_mut().find(|(name, _)| name == k) {
+                    Some((_, n)) => *n += 1,
+                    None => frame_ignored.push((k.clone(), 1)),
+                }
+            }
+        }
         frames.push(RawFrame {
             index: i,
             file_path,
+            mask_path,
             cam_to_world,
             intrinsics,
         });
     }
+    ignored_keys.extend(
+        frame_ignored
+            .into_iter()
+            .map(|(k, n)| format!("frames[].{k} ({n} frames)")),
+    );
     Ok(TransformsFile {
         path: path.to_path_buf(),
         top,
         mesh_path,
         frames,
         warnings,
+        applied_transform,
+        ngp_box,
+        ignored_keys,
     })
+}
+
+/// `applied_transform`: a 3x4 or 4x4 row-major matrix whose 3x3 part is a rotation times a
+/// positive scale (a similarity; nerfstudio writes an axis permutation).
+fn read_applied_transform(ctx: &Ctx<'_>, v: &Value) -> Result<DMat4, CaptureError> {
+    let field = "applied_transform";
+    let rows = v
+        .as_array()
+        .filter(|r| r.len() == 3 || r.len() == 4)
+        .ok_or_else(|| ctx.err(field, "expected a 3x4 or 4x4 array of rows"))?;
+    let mut m = [[0.0f64; 4]; 4];
+    m[3][3] = 1.0;
+    for (r, row) in rows.iter().enumerate() {
+        let row = row
+            .as_array()
+            .filter(|c| c.len() == 4)
+            .ok_or_else(|| ctx.err(&format!("{field}[{r}]"), "expected a row of 4 numbers"))?;
+        for (c, x) in row.iter().enumerate() {
+            m[r][c] = x
+                .as_f64()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| ctx.err(&format!("{field}[{r}][{c}]"), "not a finite number"))?;
+        }
+    }
+    if m[3] != [0.0, 0.0, 0.0, 1.0] {
+        return Err(ctx.err(&format!("{field}[3]"), "last row must be [0, 0, 0, 1]"));
+    }
+    let cols: [[f64; 4]; 4] = std::array::from_fn(|c| std::array::from_fn(|r| m[r][c]));
+    let t = DMat4::from_cols_array_2d(&cols);
+    let a = [
+        t.x_axis.truncate(),
+        t.y_axis.truncate(),
+        t.z_axis.truncate(),
+    ];
+    let s = a[0].length();
+    let similar = s > 1e-9
+        && a.iter().all(|c| (c.length() - s).abs() <= 1e-4 * s)
+        && a[0].dot(a[1]).abs() <= 1e-4 * s * s
+        && a[0].dot(a[2]).abs() <= 1e-4 * s * s
+        && a[1].dot(a[2]).abs() <= 1e-4 * s * s;
+    if !similar {
+        return Err(ctx.err(
+            field,
+            "the 3x3 part must be a rotation (or reflection) times a positive scale",
+        ));
+    }
+    Ok(t)
+}
+
+/// instant-ngp's `aabb_scale` with its `scale` and `offset`.
+fn read_ngp_box(ctx: &Ctx<'_>, obj: &Map<String, Value>) -> Result<Option<NgpBox>, CaptureError> {
+    let num = |key: &str| -> Result<Option<f64>, CaptureError> {
+        match obj.get(key) {
+            None | Some(Value::Null) => Ok(None),
+            Some(v) => v
+                .as_f64()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .map(Some)
+                .ok_or_else(|| ctx.err(key, "expected a positive number")),
+        }
+    };
+    let Some(aabb_scale) = num("aabb_scale")? else {
+        return Ok(None);
+    };
+    let scale = num("scale")?.unwrap_or(0.33);
+    let offset = match obj.get("offset") {
+        None | Some(Value::Null) => [0.5; 3],
+        Some(Value::Array(a)) if a.len() == 3 => {
+            let mut o = [0.0; 3];
+            for (k, x) in a.iter().enumerate() {
+                o[k] = x
+                    .as_f64()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| ctx.err(&format!("offset[{k}]"), "not a finite number"))?;
+            }
+            o
+        }
+        Some(_) => return Err(ctx.err("offset", "expected an array of 3 numbers")),
+    };
+    Ok(Some(NgpBox {
+        aabb_scale,
+        scale,
+        offset,
+    }))
 }
 
 struct Ctx<'a> {
@@ -246,17 +410,38 @@ impl Ctx<'_> {
     }
 }
 
-fn check_camera_model(ctx: &Ctx<'_>, field: &str, model: &str) -> Result<(), CaptureError> {
-    match model {
-        "OPENCV" | "PINHOLE" | "SIMPLE_PINHOLE" | "SIMPLE_RADIAL" | "RADIAL" => Ok(()),
-        other => Err(ctx.err(
-            field,
-            format!("camera model {other:?} is not supported (pinhole with OpenCV k1, k2, k3, p1, p2 only)"),
-        )),
-    }
+/// Camera models `camera_model` may name.
+pub const CAMERA_MODELS: [&str; 6] = [
+    "OPENCV",
+    "OPENCV_FISHEYE",
+    "PINHOLE",
+    "SIMPLE_PINHOLE",
+    "SIMPLE_RADIAL",
+    "RADIAL",
+];
+
+fn check_camera_model(
+    ctx: &Ctx<'_>,
+    field: &str,
+    model: &str,
+) -> Result<&'static str, CaptureError> {
+    CAMERA_MODELS
+        .iter()
+        .find(|m| **m == model)
+        .copied()
+        .ok_or_else(|| {
+            ctx.err(
+                field,
+                format!(
+                    "camera model {model:?} is not supported (supported: {})",
+                    CAMERA_MODELS.join(", ")
+                ),
+            )
+        })
 }
 
-const INTRINSIC_KEYS: [&str; 13] = [
+/// Intrinsic and lens keys, at the top level or per frame.
+const INTRINSIC_KEYS: [&str; 17] = [
     "fl_x",
     "fl_y",
     "cx",
@@ -268,6 +453,28 @@ const INTRINSIC_KEYS: [&str; 13] = [
     "k1",
     "k2",
     "k3",
+    "k4",
+    "p1",
+    "p2",
+    "distortion_params",
+    "camera_model",
+    "is_fisheye",
+];
+
+/// The numeric intrinsic keys, in the order of [`read_intrinsics`]'s array.
+const NUMERIC_KEYS: [&str; 14] = [
+    "fl_x",
+    "fl_y",
+    "cx",
+    "cy",
+    "w",
+    "h",
+    "camera_angle_x",
+    "camera_angle_y",
+    "k1",
+    "k2",
+    "k3",
+    "k4",
     "p1",
     "p2",
 ];
@@ -277,8 +484,8 @@ fn read_intrinsics(
     obj: &Map<String, Value>,
     prefix: &str,
 ) -> Result<RawIntrinsics, CaptureError> {
-    let mut vals = [None; 13];
-    for (slot, key) in vals.iter_mut().zip(INTRINSIC_KEYS) {
+    let mut vals = [None; 14];
+    for (slot, key) in vals.iter_mut().zip(NUMERIC_KEYS) {
         *slot = match obj.get(key) {
             None => None,
             Some(Value::Number(n)) => {
@@ -297,7 +504,42 @@ fn read_intrinsics(
             Some(_) => return Err(ctx.err(&format!("{prefix}{key}"), "expected a number")),
         };
     }
-    let [fl_x, fl_y, cx, cy, w, h, camera_angle_x, camera_angle_y, k1, k2, k3, p1, p2] = vals;
+    let [fl_x, fl_y, cx, cy, w, h, camera_angle_x, camera_angle_y, k1, k2, k3, k4, p1, p2] = vals;
+    let camera_model = match obj.get("camera_model") {
+        None | Some(Value::Null) => None,
+        Some(Value::String(m)) => Some(check_camera_model(
+            ctx,
+            &format!("{prefix}camera_model"),
+            m,
+        )?),
+        Some(_) => return Err(ctx.err(&format!("{prefix}camera_model"), "expected a string")),
+    };
+    let is_fisheye = match obj.get("is_fisheye") {
+        None | Some(Value::Null) => None,
+        Some(Value::Bool(b)) => Some(*b),
+        Some(_) => return Err(ctx.err(&format!("{prefix}is_fisheye"), "expected true or false")),
+    };
+    let distortion_params = match obj.get("distortion_params") {
+        None | Some(Value::Null) => None,
+        Some(Value::Array(a)) if a.len() <= 6 => {
+            let mut d = [0.0; 6];
+            for (k, x) in a.iter().enumerate() {
+                d[k] = x.as_f64().filter(|x| x.is_finite()).ok_or_else(|| {
+                    ctx.err(
+                        &format!("{prefix}distortion_params[{k}]"),
+                        "not a finite number",
+                    )
+                })?;
+            }
+            Some(d)
+        }
+        Some(_) => {
+            return Err(ctx.err(
+                &format!("{prefix}distortion_params"),
+                "expected an array of at most 6 numbers [k1, k2, k3, k4, p1, p2]",
+            ))
+        }
+    };
     Ok(RawIntrinsics {
         fl_x,
         fl_y,
@@ -310,8 +552,12 @@ fn read_intrinsics(
         k1,
         k2,
         k3,
+        k4,
         p1,
         p2,
+        distortion_params,
+        camera_model,
+        is_fisheye,
     })
 }
 
@@ -321,7 +567,7 @@ fn read_matrix(
     fo: &Map<String, Value>,
     field: &str,
     warnings: &mut Vec<String>,
-) -> Result<Mat4, CaptureError> {
+) -> Result<DMat4, CaptureError> {
     let mfield = format!("{field}.transform_matrix");
     let rows = fo
         .get("transform_matrix")
@@ -381,8 +627,8 @@ fn read_matrix(
             ctx.path.display()
         ));
     }
-    let cols: [[f32; 4]; 4] = std::array::from_fn(|c| std::array::from_fn(|r| m[r][c] as f32));
-    Ok(Mat4::from_cols_array_2d(&cols))
+    let cols: [[f64; 4]; 4] = std::array::from_fn(|c| std::array::from_fn(|r| m[r][c]));
+    Ok(DMat4::from_cols_array_2d(&cols))
 }
 
 /// Replaces the bare tokens `NaN`, `Infinity` and `-Infinity` outside string literals by
@@ -427,7 +673,7 @@ fn sanitize_non_finite(text: &str) -> Option<String> {
 
 /// Camera and distortion of one frame once its image size is known.
 pub(crate) struct ResolvedCamera {
-    pub camera: Camera,
+    pub camera: CameraRecord,
     pub distortion: Distortion,
 }
 
@@ -521,24 +767,82 @@ pub(crate) fn resolve_camera(
     }
     let cx = k.cx.unwrap_or(0.5 * wf);
     let cy = k.cy.unwrap_or(0.5 * hf);
-    let distortion = Distortion {
-        k1: k.k1.unwrap_or(0.0) as f32,
-        k2: k.k2.unwrap_or(0.0) as f32,
-        k3: k.k3.unwrap_or(0.0) as f32,
-        p1: k.p1.unwrap_or(0.0) as f32,
-        p2: k.p2.unwrap_or(0.0) as f32,
-    };
+    let distortion = resolve_lens(&ctx, frame, &file.top, &k)?;
     Ok(ResolvedCamera {
-        camera: Camera {
-            fx: fx as f32,
-            fy: fy as f32,
-            cx: cx as f32,
-            cy: cy as f32,
+        camera: CameraRecord {
+            fx,
+            fy,
+            cx,
+            cy,
             width: iw,
             height: ih,
             cam_to_world: frame.cam_to_world,
         },
         distortion,
+    })
+}
+
+/// The lens of a frame: `is_fisheye` or `camera_model` pick the formula (without either, an
+/// OpenCV lens when a coefficient is non-zero). Coefficients: the top level's `k1`..`p2` or
+/// `distortion_params`, then the frame's: its `distortion_params` replace them all, its
+/// `k1`..`p2` replace one each. Both forms at one level are an error.
+fn resolve_lens(
+    ctx: &Ctx<'_>,
+    frame: &RawFrame,
+    top: &RawIntrinsics,
+    k: &RawIntrinsics,
+) -> Result<Distortion, CaptureError> {
+    let at = format!("frames[{}]", frame.index);
+    let explicit = |r: &RawIntrinsics| [r.k1, r.k2, r.k3, r.k4, r.p1, r.p2];
+    let mut c = [0.0f64; 6];
+    for (level, r) in [("the top level", top), (at.as_str(), &frame.intrinsics)] {
+        let keys = explicit(r);
+        if r.distortion_params.is_some() && keys.iter().any(Option::is_some) {
+            return Err(ctx.err(
+                &at,
+                format!("both distortion_params and k1..k4/p1/p2 are given at {level}: keep one"),
+            ));
+        }
+        if let Some(d) = r.distortion_params {
+            c = d;
+        }
+        for (slot, v) in c.iter_mut().zip(keys) {
+            if let Some(v) = v {
+                *slot = v;
+            }
+        }
+    }
+    let model = match (k.is_fisheye, k.camera_model) {
+        (Some(true), None | Some("OPENCV_FISHEYE")) => LensModel::Fisheye,
+        (Some(true), Some(m)) => {
+            return Err(ctx.err(&at, format!("is_fisheye is true but camera_model is {m}")))
+        }
+        (_, Some("OPENCV_FISHEYE")) => LensModel::Fisheye,
+        (_, Some("PINHOLE" | "SIMPLE_PINHOLE")) => {
+            if c.iter().any(|&v| v != 0.0) {
+                return Err(ctx.err(
+                    &at,
+                    "camera_model is a pinhole model but distortion coefficients are non-zero (set camera_model to OPENCV, or remove them)",
+                ));
+            }
+            LensModel::Pinhole
+        }
+        (_, Some(_)) => LensModel::OpenCv,
+        (_, None) if c.iter().any(|&v| v != 0.0) => LensModel::OpenCv,
+        (_, None) => LensModel::Pinhole,
+    };
+    let [k1, k2, k3, k4, p1, p2] = c;
+    if model == LensModel::Fisheye && (p1 != 0.0 || p2 != 0.0) {
+        return Err(ctx.err(&at, "a fisheye lens has no tangential coefficients p1, p2"));
+    }
+    Ok(Distortion {
+        model,
+        k1,
+        k2,
+        k3,
+        k4,
+        p1,
+        p2,
     })
 }
 
@@ -569,18 +873,5 @@ mod tests {
             .unwrap();
         assert_eq!(s, r#"{"a": null, "NaN": "x NaN", "b": [null, null]}"#);
         assert!(sanitize_non_finite(r#"{"a": 1,}"#).is_none());
-    }
-
-    #[test]
-    fn distortion_identity_and_radial() {
-        let d = Distortion::default();
-        assert!(d.is_identity());
-        assert_eq!(d.distort(0.3, -0.2), (0.3, -0.2));
-        let d = Distortion {
-            k1: 0.1,
-            ..Default::default()
-        };
-        let (x, y) = d.distort(0.5, 0.0);
-        assert!((x - 0.5 * (1.0 + 0.1 * 0.25)).abs() < 1e-7 && y == 0.0);
     }
 }

@@ -67,42 +67,80 @@ fn mse_u8(a: &[u8], b: &[u8]) -> f64 {
 
 /// All errors of a rendered view against its ground truth (same size).
 pub fn view_error(render: &Rgba, truth: &Rgba) -> ViewError {
+    view_error_masked(render, truth, None)
+}
+
+/// [`view_error`] over the pixels `valid` marks (every pixel when None): PSNR and object MSE
+/// over them only; SSIM averaged over them, with the render's invalid pixels replaced by the
+/// truth first, so they add no difference to their valid neighbours' windows.
+pub fn view_error_masked(render: &Rgba, truth: &Rgba, valid: Option<&[bool]>) -> ViewError {
     assert_eq!((render.width, render.height), (truth.width, truth.height));
-    let r = on_white_u8(render);
+    let n = render.width * render.height;
+    if let Some(v) = valid {
+        assert_eq!(v.len(), n, "validity mask size");
+    }
+    let ok = |i: usize| valid.is_none_or(|v| v[i]);
+    let mut r = on_white_u8(render);
     let t = on_white_u8(truth);
+    for i in (0..n).filter(|&i| !ok(i)) {
+        r[3 * i..3 * i + 3].copy_from_slice(&t[3 * i..3 * i + 3]);
+    }
     let mut se = 0.0f64;
-    let mut n = 0usize;
+    let mut n_obj = 0usize;
+    let mut se_all = 0.0f64;
+    let mut n_valid = 0usize;
     for (i, px) in truth.data.chunks_exact(4).enumerate() {
+        if !ok(i) {
+            continue;
+        }
+        let mut d2 = 0.0;
+        for c in 0..3 {
+            let d = r[3 * i + c] as f64 - t[3 * i + c] as f64;
+            d2 += d * d;
+        }
+        se_all += d2;
+        n_valid += 1;
         if px[3] > 0.5 {
-            for c in 0..3 {
-                let d = r[3 * i + c] as f64 - t[3 * i + c] as f64;
-                se += d * d;
-            }
-            n += 1;
+            se += d2;
+            n_obj += 1;
         }
     }
+    let mse = se_all / (3 * n_valid.max(1)) as f64;
     ViewError {
-        psnr: psnr_u8(&r, &t),
-        mse_obj: if n > 0 { se / (3 * n) as f64 } else { 0.0 },
-        obj_pixels: n,
-        ssim: ssim_rgb_u8(&r, &t, render.width, render.height),
+        psnr: if mse <= 1e-10 {
+            100.0
+        } else {
+            10.0 * (255.0f64 * 255.0 / mse).log10()
+        },
+        mse_obj: if n_obj > 0 {
+            se / (3 * n_obj) as f64
+        } else {
+            0.0
+        },
+        obj_pixels: n_obj,
+        ssim: ssim_rgb_u8_masked(&r, &t, render.width, render.height, valid),
     }
 }
 
 /// Mean SSIM over the three channels of two interleaved 8-bit RGB images.
 pub fn ssim_rgb_u8(a: &[u8], b: &[u8], w: usize, h: usize) -> f64 {
+    ssim_rgb_u8_masked(a, b, w, h, None)
+}
+
+/// [`ssim_rgb_u8`] with the SSIM map averaged over the pixels `valid` marks.
+fn ssim_rgb_u8_masked(a: &[u8], b: &[u8], w: usize, h: usize, valid: Option<&[bool]>) -> f64 {
     let mut total = 0.0;
     for c in 0..3 {
         let pa: Vec<f64> = a.iter().skip(c).step_by(3).map(|&v| v as f64).collect();
         let pb: Vec<f64> = b.iter().skip(c).step_by(3).map(|&v| v as f64).collect();
-        total += ssim_plane(&pa, &pb, w, h);
+        total += ssim_plane(&pa, &pb, w, h, valid);
     }
     total / 3.0
 }
 
 /// SSIM of two planes with values on [0, 255]; Gaussian window with "valid" borders
 /// (the window is renormalised where it leaves the image, so tiny images still work).
-fn ssim_plane(a: &[f64], b: &[f64], w: usize, h: usize) -> f64 {
+fn ssim_plane(a: &[f64], b: &[f64], w: usize, h: usize, valid: Option<&[bool]>) -> f64 {
     const R: isize = 5;
     const SIGMA: f64 = 1.5;
     let c1 = (0.01f64 * 255.0).powi(2);
@@ -148,14 +186,19 @@ fn ssim_plane(a: &[f64], b: &[f64], w: usize, h: usize) -> f64 {
     let sbb = blur(&|i| b[i] * b[i]);
     let sab = blur(&|i| a[i] * b[i]);
     let mut total = 0.0;
+    let mut count = 0usize;
     for i in 0..w * h {
+        if valid.is_some_and(|v| !v[i]) {
+            continue;
+        }
+        count += 1;
         let va = saa[i] - ma[i] * ma[i];
         let vb = sbb[i] - mb[i] * mb[i];
         let cov = sab[i] - ma[i] * mb[i];
         total += ((2.0 * ma[i] * mb[i] + c1) * (2.0 * cov + c2))
             / ((ma[i] * ma[i] + mb[i] * mb[i] + c1) * (va + vb + c2));
     }
-    total / (w * h).max(1) as f64
+    total / count.max(1) as f64
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@ use std::time::Instant;
 use dnr_runtime::renderer::{Renderer, RendererError, RgbaImage};
 
 use crate::capture::Frame;
-use metrics::{on_white_u8, view_error, Rgba, ViewError};
+use metrics::{on_white_u8, view_error_masked, Rgba, ViewError};
 
 /// Full-scale value of the error heat map: a mean absolute error of this many 8-bit levels
 /// (over R, G, B, on white) or more is drawn white.
@@ -136,7 +136,8 @@ pub fn evaluate(
             height: render.height,
             data: &render.data,
         };
-        let error = view_error(&mine, &truth);
+        // Masked-out pixels and those outside the undistorted photograph do not count.
+        let error = view_error_masked(&mine, &truth, frame.valid.as_deref());
         let image = match save {
             Some(dir) => {
                 let path = dir.join(format!("{}.png", frame_file_stem(&frame.name)));
@@ -364,12 +365,26 @@ mod tests {
         let frame = Frame {
             name: "test/quad".into(),
             image_path: PathBuf::from("quad.png"),
+            mask_path: None,
+            record: crate::capture::CameraRecord {
+                fx: camera.fx as f64,
+                fy: camera.fy as f64,
+                cx: camera.cx as f64,
+                cy: camera.cy as f64,
+                width: camera.width,
+                height: camera.height,
+                cam_to_world: camera.cam_to_world.as_dmat4(),
+            },
             camera,
             distortion: Default::default(),
             undistorted: false,
+            source_size: (40, 30),
             rgb,
             alpha,
             has_alpha: true,
+            valid: None,
+            has_mask: false,
+            point_ids: Vec::new(),
         };
         (renderer, frame)
     }
@@ -396,6 +411,13 @@ mod tests {
                     .for_each(|c| *c = (*c - 10.0 / 255.0).max(0.0));
             }
         }
+        // The same darkened pixels marked invalid (a mask, or outside an undistorted photo)
+        // do not count: the view is perfect again.
+        let mut masked = dark.clone();
+        masked.valid = Some(frame.alpha.iter().map(|&a| a <= 0.5).collect());
+        let m = evaluate(&renderer, &[masked], None).unwrap().views[0].error;
+        assert_eq!((m.psnr, m.mse_obj, m.obj_pixels), (100.0, 0.0, 0));
+        assert!((m.ssim - 1.0).abs() < 1e-12, "{m:?}");
         let report = evaluate(&renderer, &[frame.clone(), dark], None).unwrap();
         let e = report.views[1].error;
         assert!(

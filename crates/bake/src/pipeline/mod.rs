@@ -43,6 +43,8 @@ pub struct BakeOptions {
     pub write_f32: Option<PathBuf>,
     /// `--preset auto`: also write the state just before pruning here.
     pub write_unpruned: Option<PathBuf>,
+    /// Capture loading choices (working size, UVs, mesh placement, alignment check).
+    pub input: crate::capture::InputOptions,
 }
 
 /// Final figures of a bake.
@@ -87,6 +89,8 @@ struct Report<'a, A: Serialize> {
     validation_checks: &'a [(u64, f64, f64)],
     /// Divergences the training loop recovered from (rollback, halved learning rates).
     recoveries: &'a [Recovery],
+    /// What loading found and did: timings, UVs, the alignment check.
+    load: &'a crate::capture::LoadReport,
     /// `--preset auto`: what was measured and decided.
     #[serde(skip_serializing_if = "Option::is_none")]
     auto: Option<&'a A>,
@@ -139,6 +143,8 @@ pub struct Loaded {
     pub val_idx: Vec<usize>,
     /// The capture's test views (reported, never decided on).
     pub test: Vec<View>,
+    /// What loading found and did.
+    pub load: crate::capture::LoadReport,
 }
 
 impl Loaded {
@@ -188,14 +194,22 @@ pub fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, BakeError> 
             .num_threads(cfg.threads)
             .build_global();
     }
-    let load = LoadOptions {
-        mesh: opts.mesh.clone(),
-        limits: opts.limits,
-        ..LoadOptions::default()
-    };
-    let capture = Capture::load(&opts.capture, &load)?;
+    let load: LoadOptions = opts.input.load_options(opts.mesh.clone(), opts.limits);
+    let mut capture = Capture::load(&opts.capture, &load)?;
+    // Before training: does the mesh line up with the photographs?
+    let alignment = crate::capture::alignment::check(&mut capture, &opts.input.alignment)?;
     for w in &capture.warnings {
         eprintln!("dnr-bake: warning: {w}");
+    }
+    let load = capture.load_report(&load, alignment);
+    if opts.input.verbose {
+        for k in &load.ignored_keys {
+            eprintln!("dnr-bake: ignored key {k}");
+        }
+        eprintln!(
+            "dnr-bake: load timings (s): {}",
+            serde_json::to_string(&load.timings).unwrap_or_default()
+        );
     }
     let all = views::prepare(&capture.mesh, &capture.train);
     let test = views::prepare(&capture.mesh, &capture.test);
@@ -216,6 +230,7 @@ pub fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, BakeError> 
         n_fit,
         val_idx,
         test,
+        load,
     })
 }
 
@@ -374,6 +389,7 @@ pub fn finish<A: Serialize>(
             records: &state.records,
             validation_checks: &state.checks,
             recoveries: &state.recoveries,
+            load: &loaded.load,
             auto: outcome.auto,
             summary: &summary,
         };

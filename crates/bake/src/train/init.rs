@@ -27,7 +27,7 @@ fn splat(views: &[View], width: usize, height: usize, wrap_s: Wrap, wrap_t: Wrap
         let n = v.width() * v.height();
         for i in 0..n {
             // Only pixels the proxy covers and the photo shows as object.
-            if v.gbuf.coverage[i] == 0.0 || v.alpha[i] < 0.5 {
+            if v.gbuf.coverage[i] == 0.0 || v.alpha[i] < 0.5 || !v.is_valid(i) {
                 continue;
             }
             let [u, vv] = v.gbuf.uv[i];

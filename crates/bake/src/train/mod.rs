@@ -25,7 +25,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::eval::metrics::{view_error, Rgba, ViewError};
+use crate::eval::metrics::{view_error_masked, Rgba, ViewError};
 use crate::export::ExportNet;
 use crate::kernels::adam::{Adam, AdamConfig, SparseAdam};
 use crate::kernels::loss::{colour_l1_loss_where, l1_loss, level_lambda};
@@ -461,7 +461,12 @@ impl Trainer {
                 let target = Tensor::from_vec(3, h, w, v.target.clone())
                     .map_err(|e| TrainError::Kernel(e.to_string()))?;
                 let mut dcomp = Tensor::zeros(3, h, w);
-                let loss = l1_loss(&comp, &target, None, 1.0, &mut dcomp);
+                // Invalid pixels (masked out, outside the photograph) weigh nothing.
+                let weight: Option<Vec<f32>> = v
+                    .valid
+                    .as_ref()
+                    .map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 }).collect());
+                let loss = l1_loss(&comp, &target, weight.as_deref(), 1.0, &mut dcomp);
                 lap(&mut t, &mut ph.forward);
                 // colour = clamp(x): gradient only where x is inside [0, 1].
                 let mut dx = Tensor::zeros(self.pyr.channels, h, w);
@@ -511,7 +516,7 @@ impl Trainer {
             colour_l1_loss_where(
                 &x,
                 &v.target,
-                |i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5,
+                |i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5 && v.is_valid(i),
                 self.cfg.mean_colour_weight,
                 &mut dx,
             );
@@ -702,8 +707,9 @@ impl Trainer {
                 render[4 * i + 3] = alpha[i];
                 truth[4 * i + 3] = 1.0;
             }
-            // Object pixels come from the capture's mask, so measure them with it.
-            let mut e = view_error(
+            // Object pixels come from the capture's mask, so measure them with it; invalid
+            // pixels do not count.
+            let mut e = view_error_masked(
                 &Rgba {
                     width: w,
                     height: h,
@@ -714,6 +720,7 @@ impl Trainer {
                     height: h,
                     data: &truth,
                 },
+                v.valid.as_deref(),
             );
             let (mut se, mut cnt) = (0.0f64, 0usize);
             let r8 = crate::eval::metrics::on_white_u8(&Rgba {
@@ -727,7 +734,7 @@ impl Trainer {
                 data: &truth,
             });
             for i in 0..n {
-                if v.alpha[i] > 0.5 {
+                if v.alpha[i] > 0.5 && v.is_valid(i) {
                     for c in 0..3 {
                         let d = r8[3 * i + c] as f64 - t8[3 * i + c] as f64;
                         se += d * d;
@@ -886,6 +893,8 @@ const LOSS_CHUNK: usize = 4096;
 /// `colour = (t + 1) / 2`, `alpha = (t3 + 1) / 2` with 4 outputs (else the coverage),
 /// `comp = colour * alpha + (1 - alpha)` (on white, like the target), `L = mean |comp - target|`
 /// over 3 x n, plus with 4 outputs the mean L1 of alpha against the mask (gradient only).
+/// Pixels the view marks invalid (masked out, outside the undistorted photograph) give no
+/// loss and no gradient, and n counts only the valid ones.
 /// The gradient is [`l1_loss`]'s, term by term, bit for bit; the loss sums fixed chunks of
 /// pixels in parallel and adds their sums in chunk order (the same for any thread count).
 ///
@@ -896,9 +905,18 @@ pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64
         y.len() == out_ch * n && dy.len() == out_ch * n && v.target.len() >= 3 * n,
         "photometric loss: shapes"
     );
+    // Valid pixels only (all of them for a view without a validity mask).
+    let nv = v
+        .valid
+        .as_ref()
+        .map_or(n, |m| m.iter().filter(|&&b| b).count());
+    if nv == 0 {
+        dy.fill(0.0);
+        return 0.0;
+    }
     // l1_loss's scale / (channels * pixels) for the colour and the alpha term.
-    let g = (1.0f64 / (3.0 * n as f64)) as f32;
-    let ga = (1.0f64 / n as f64) as f32;
+    let g = (1.0f64 / (3.0 * nv as f64)) as f32;
+    let ga = (1.0f64 / nv as f64) as f32;
     let (ycol, yal) = y.split_at(3 * n);
     let (dcol, dal) = dy.split_at_mut(3 * n);
     let (d0, rest) = dcol.split_at_mut(n);
@@ -921,10 +939,19 @@ pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64
         .into_par_iter()
         .map(|(ci, (((c0, c1), c2), mut dal))| {
             let i0 = ci * LOSS_CHUNK;
-            let dcol = [c0, c1, c2];
+            let mut dcol = [c0, c1, c2];
             let mut sums = [0.0f64; 3];
             for j in 0..dcol[0].len() {
                 let i = i0 + j;
+                if !v.is_valid(i) {
+                    for d in dcol.iter_mut() {
+                        d[j] = 0.0;
+                    }
+                    if let Some(dal) = dal.as_deref_mut() {
+                        dal[j] = 0.0;
+                    }
+                    continue;
+                }
                 let a = if out_ch == 4 {
                     0.5 * (yal[i] + 1.0)
                 } else {
@@ -958,5 +985,5 @@ pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64
     let sums = partial.iter().fold([0.0f64; 3], |acc, s| {
         [acc[0] + s[0], acc[1] + s[1], acc[2] + s[2]]
     });
-    (sums[0] + sums[1] + sums[2]) / (3.0 * n as f64)
+    (sums[0] + sums[1] + sums[2]) / (3.0 * nv as f64)
 }

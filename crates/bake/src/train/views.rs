@@ -22,6 +22,9 @@ pub struct View {
     pub alpha: Vec<f32>,
     /// Whether the capture gave a mask (alpha channel).
     pub has_alpha: bool,
+    /// H x W: false where a pixel gives no loss and does not count in evaluation (masked
+    /// out, or outside the undistorted photograph); None when all are valid.
+    pub valid: Option<Vec<bool>>,
 }
 
 impl View {
@@ -32,6 +35,11 @@ impl View {
     /// Height in pixels.
     pub fn height(&self) -> usize {
         self.gbuf.height
+    }
+
+    /// Whether pixel `i` gives loss and counts in evaluation.
+    pub fn is_valid(&self, i: usize) -> bool {
+        self.valid.as_ref().is_none_or(|v| v[i])
     }
 
     /// Rasterises `scene` for `frame` and converts its image to planar targets.
@@ -51,6 +59,7 @@ impl View {
             target,
             alpha: frame.alpha.clone(),
             has_alpha: frame.has_alpha,
+            valid: frame.valid.clone(),
         }
     }
 
@@ -61,6 +70,7 @@ impl View {
         let mut g = GBuffer::new(w, h);
         let mut target = vec![0.0f32; 3 * w * h];
         let mut alpha = vec![0.0f32; w * h];
+        let mut valid = self.valid.as_ref().map(|_| vec![false; w * h]);
         for y in 0..h {
             for x in 0..w {
                 let s = (y0 + y) * src_w + x0 + x;
@@ -75,6 +85,9 @@ impl View {
                     target[c * w * h + d] = self.target[c * n_src + s];
                 }
                 alpha[d] = self.alpha[s];
+                if let Some(v) = valid.as_mut() {
+                    v[d] = self.is_valid(s);
+                }
             }
         }
         View {
@@ -83,6 +96,7 @@ impl View {
             target,
             alpha,
             has_alpha: self.has_alpha,
+            valid,
         }
     }
 

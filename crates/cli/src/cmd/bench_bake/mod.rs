@@ -242,6 +242,7 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
                 limits: Default::default(),
                 write_f32: None,
                 write_unpruned: None,
+                input: Default::default(),
             };
             let s = bake(&cfg, &opts).with_context(|| format!("baking `{stem}` of {name}"))?;
             table.cells.push(Cell {
