@@ -61,7 +61,7 @@ pub const COLMAP_MESH_NAMES: [&str; 4] = [
 /// are downscaled with an area filter. Measured on the phone-like capture (64 photos of
 /// 2016x1512, 300 s auto bakes, held-out error evaluated at 1024x768): 512 gives 23.23 dB,
 /// 768 23.42 dB, 1024 23.13 dB; training steps cost about 0.1, 0.2 and 0.26 s whole-frame
-/// (docs/measurements/2026-12-04-capture).
+/// (docs/benchmarks/capture-2026-12-04).
 pub const DEFAULT_MAX_SIDE: u32 = 768;
 
 /// Resource limits, checked before the corresponding allocation.
