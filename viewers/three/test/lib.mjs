@@ -1,6 +1,7 @@
 // Node side helpers of the browser tests: PNG decoding, the spec's comparison, chromium.
 import { inflateSync } from 'node:zlib';
 import { readFileSync, existsSync } from 'node:fs';
+import { delimiter, join } from 'node:path';
 import { chromium } from 'playwright-core';
 
 /** RGBA8 pixels of an 8-bit RGBA or RGB PNG (non-interlaced). */
@@ -93,9 +94,13 @@ export function fromB64(s) {
   return new Uint8Array(Buffer.from(s, 'base64'));
 }
 
-/** The Debian chromium (scripts/setup.sh installs it), or $CHROMIUM. */
+/** $CHROMIUM, or the Debian chromium on the PATH (scripts/setup.sh installs it). */
 export function chromiumPath() {
-  const candidates = [process.env.CHROMIUM, '/usr/bin/chromium', '/usr/bin/chromium-browser'].filter(Boolean);
+  const onPath = (process.env.PATH || '')
+    .split(delimiter)
+    .filter(Boolean)
+    .flatMap((dir) => ['chromium', 'chromium-browser'].map((name) => join(dir, name)));
+  const candidates = [process.env.CHROMIUM, ...onPath].filter(Boolean);
   const found = candidates.find((p) => existsSync(p));
   if (!found) throw new Error('chromium not found: run `bash scripts/setup.sh` (apt-get install chromium) or set CHROMIUM');
   return found;
