@@ -114,3 +114,50 @@ fn the_final_state_is_never_worse_on_validation_than_a_checked_one() {
         state.checks
     );
 }
+
+#[test]
+fn a_finest_level_of_noise_is_removed_and_one_within_the_bound_kept() {
+    use dnr_bake::auto::resolution::check_finest;
+    let (fit, val) = sample_views();
+    let c = TrainConfig {
+        levels: 3,
+        ..cfg(2e-3, 150)
+    };
+    let mut t = Trainer::new(c, &fit).unwrap();
+    let mut state = RunState::default();
+    run(
+        &mut t,
+        &mut state,
+        1.0,
+        &fit,
+        &val,
+        &[],
+        None,
+        |_, _| {},
+        |_| {},
+    )
+    .unwrap();
+    let trained = t.pyr.clone();
+
+    // Loud noise in the finest level: removing it gains, so it goes.
+    let mut x = 0x9e37_79b9u32;
+    for v in &mut t.pyr.levels[0].data {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        *v = (x as f32 / u32::MAX as f32 - 0.5) * 4.0;
+    }
+    let c = check_finest(&mut t, &val, 0.5, 0.05).unwrap().unwrap();
+    assert!(c.without_db > c.with_db, "{c:?}");
+    assert!(c.removed && t.pyr.levels.len() == 2, "{c:?}");
+    // Two levels left: never tried.
+    assert!(check_finest(&mut t, &val, 0.6, 0.05).unwrap().is_none());
+
+    // The trained level, against a bound it beats (removal only below a 1 dB loss): kept,
+    // and the texture is left exactly as it was.
+    t.pyr = trained.clone();
+    let c = check_finest(&mut t, &val, 0.5, -1.0).unwrap().unwrap();
+    assert!(!c.removed && c.with_db - c.without_db >= -1.0, "{c:?}");
+    assert_eq!(t.pyr.levels.len(), 3);
+    assert_eq!(t.pyr.levels[0].data, trained.levels[0].data);
+}

@@ -6,6 +6,7 @@
 //! The CLI's `dnr eval` and the baker both call [`evaluate`].
 
 pub mod metrics;
+pub mod regions;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -36,6 +37,9 @@ pub struct ViewReport {
     /// The comparison image written, if any.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub image: Option<PathBuf>,
+    /// The error by region of the proxy's silhouette (with [`Options::regions`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub regions: Option<regions::Regions>,
 }
 
 /// Means over the views.
@@ -58,6 +62,18 @@ pub struct EvalReport {
     pub views: Vec<ViewReport>,
     /// Means over the views (zeros when there are none).
     pub mean: MeanReport,
+    /// Regions summed over the views (with [`Options::regions`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub regions: Option<regions::Regions>,
+}
+
+/// What [`evaluate_with`] does besides the metrics.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options<'a> {
+    /// Write comparison images to this folder.
+    pub save: Option<&'a Path>,
+    /// Split each view's error by region of the proxy's silhouette ([`regions`]).
+    pub regions: bool,
 }
 
 /// Why an evaluation failed.
@@ -100,6 +116,23 @@ pub fn evaluate(
     frames: &[Frame],
     save: Option<&Path>,
 ) -> Result<EvalReport, EvalError> {
+    evaluate_with(
+        renderer,
+        frames,
+        Options {
+            save,
+            regions: false,
+        },
+    )
+}
+
+/// [`evaluate`] with [`Options`].
+pub fn evaluate_with(
+    renderer: &Renderer,
+    frames: &[Frame],
+    opts: Options,
+) -> Result<EvalReport, EvalError> {
+    let save = opts.save;
     if let Some(dir) = save {
         std::fs::create_dir_all(dir).map_err(|e| EvalError::Save {
             path: dir.to_path_buf(),
@@ -138,6 +171,19 @@ pub fn evaluate(
         };
         // Masked-out pixels and those outside the undistorted photograph do not count.
         let error = view_error_masked(&mine, &truth, frame.valid.as_deref());
+        let regions = opts.regions.then(|| {
+            let g = dnr_runtime::raster::rasterize(renderer.scene(), &frame.camera);
+            let covered: Vec<bool> = g.coverage.iter().map(|&c| c != 0.0).collect();
+            regions::split(
+                &on_white_u8(&mine),
+                &on_white_u8(&truth),
+                &frame.alpha,
+                &covered,
+                frame.valid.as_deref(),
+                w as usize,
+                h as usize,
+            )
+        });
         let image = match save {
             Some(dir) => {
                 let path = dir.join(format!("{}.png", frame_file_stem(&frame.name)));
@@ -153,10 +199,22 @@ pub fn evaluate(
             error,
             render_ms,
             image,
+            regions,
         });
     }
     let mean = mean_of(&views);
-    Ok(EvalReport { views, mean })
+    let regions = opts.regions.then(|| {
+        let mut sum = regions::Regions::default();
+        for r in views.iter().filter_map(|v| v.regions.as_ref()) {
+            sum.merge(r);
+        }
+        sum
+    });
+    Ok(EvalReport {
+        views,
+        mean,
+        regions,
+    })
 }
 
 fn mean_of(views: &[ViewReport]) -> MeanReport {

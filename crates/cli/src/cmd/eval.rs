@@ -9,7 +9,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use dnr_bake::eval::evaluate;
+use dnr_bake::eval::regions::{Regions, DISTANCE_BINS};
+use dnr_bake::eval::{evaluate_with, Options};
 use dnr_runtime::renderer::Renderer;
 
 use super::render::{load_frames, Split};
@@ -30,6 +31,11 @@ pub struct Args {
     /// Write `ground truth | render | error` comparison PNGs to this folder.
     #[arg(long, value_name = "DIR")]
     pub save_images: Option<PathBuf>,
+    /// Split the error by region of the proxy's silhouette: object pixels the proxy covers,
+    /// object pixels it misses (by distance to the nearest covered pixel), covered pixels
+    /// outside the object. Says whether a coarse proxy's error is in its surface or its outline.
+    #[arg(long)]
+    pub regions: bool,
 }
 
 /// Evaluates and prints the report.
@@ -39,7 +45,14 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("cannot load {}", args.asset.display()))?;
     let frames = load_frames(&args.capture, &args.asset, args.split)?;
     let load_ms = start.elapsed().as_secs_f64() * 1e3;
-    let report = evaluate(&renderer, &frames, args.save_images.as_deref())?;
+    let report = evaluate_with(
+        &renderer,
+        &frames,
+        Options {
+            save: args.save_images.as_deref(),
+            regions: args.regions,
+        },
+    )?;
 
     let to_stdout = args.json.as_deref().is_some_and(|p| p.as_os_str() == "-");
     if !to_stdout {
@@ -68,6 +81,9 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
             "",
             m.render_ms
         );
+        if let Some(r) = &report.regions {
+            print_regions(r);
+        }
         if let Some(dir) = &args.save_images {
             println!(
                 "comparison images (truth | render | error) in {}",
@@ -83,6 +99,7 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
             "split": format!("{:?}", args.split).to_lowercase(),
             "views": report.views,
             "mean": report.mean,
+            "regions": report.regions,
         });
         let text = serde_json::to_string_pretty(&out)?;
         if to_stdout {
@@ -92,6 +109,37 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The error by region over all views: pixels, MSE and share of the frames' squared error.
+fn print_regions(r: &Regions) {
+    println!();
+    println!(
+        "{:<36} {:>10} {:>9} {:>8}",
+        "error by region (all views)", "pixels", "MSE", "share"
+    );
+    let row = |name: &str, g: &dnr_bake::eval::regions::Region| {
+        println!(
+            "{:<36} {:>10} {:>9.2} {:>7.1}%",
+            name,
+            g.pixels,
+            g.mse(),
+            100.0 * r.share(g)
+        );
+    };
+    row("object, covered by the proxy", &r.inside);
+    row("object, missed by the proxy", &r.missed);
+    let mut lo = 0;
+    for (k, g) in r.missed_by_distance.iter().enumerate() {
+        let name = match DISTANCE_BINS.get(k) {
+            Some(&hi) => format!("  missed, {}..{} px from cover", lo + 1, hi),
+            None => format!("  missed, over {lo} px from cover"),
+        };
+        row(&name, g);
+        lo = DISTANCE_BINS.get(k).copied().unwrap_or(lo);
+    }
+    row("covered, not object", &r.excess);
+    row("background", &r.background);
 }
 
 /// Writes `bytes` to a temporary file beside `path`, then renames it.
