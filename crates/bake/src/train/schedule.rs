@@ -100,7 +100,8 @@ impl Schedule {
         let unit = |x: f64| x.is_finite() && (0.0..=1.0).contains(&x);
         if !unit(self.warmup)
             || !unit(self.floor)
-            || !(self.warmup_start > 0.0 && unit(self.warmup_start))
+            || self.warmup_start <= 0.0
+            || !unit(self.warmup_start)
         {
             return Err(format!(
                 "schedule: warm-up {} (fraction), warm-up start {} and floor {} must lie in [0, 1] (start > 0)",
