@@ -42,6 +42,25 @@ fn cfg(lr: f32, steps: u64) -> TrainConfig {
     }
 }
 
+/// A whole run of `c` on `fit`, validated on `val`, with no test views and no callbacks.
+fn train_quietly(c: TrainConfig, fit: &[View], val: &[View]) -> (Trainer, RunState) {
+    let mut t = Trainer::new(c, fit).unwrap();
+    let mut state = RunState::default();
+    run(
+        &mut t,
+        &mut state,
+        1.0,
+        fit,
+        val,
+        &[],
+        None,
+        |_, _| {},
+        |_| {},
+    )
+    .unwrap();
+    (t, state)
+}
+
 #[test]
 fn the_schedule_anneals_to_its_floor_over_the_steps() {
     let (fit, val) = sample_views();
@@ -83,20 +102,7 @@ fn the_final_state_is_never_worse_on_validation_than_a_checked_one() {
     // the last one, and the loop must hand that one back.
     let mut c = cfg(3e-2, 120);
     c.schedule = Schedule::CONSTANT;
-    let mut t = Trainer::new(c, &fit).unwrap();
-    let mut state = RunState::default();
-    run(
-        &mut t,
-        &mut state,
-        1.0,
-        &fit,
-        &val,
-        &[],
-        None,
-        |_, _| {},
-        |_| {},
-    )
-    .unwrap();
+    let (t, state) = train_quietly(c, &fit, &val);
     let best = state
         .checks
         .iter()
@@ -123,20 +129,7 @@ fn a_finest_level_of_noise_is_removed_and_one_within_the_bound_kept() {
         levels: 3,
         ..cfg(2e-3, 150)
     };
-    let mut t = Trainer::new(c, &fit).unwrap();
-    let mut state = RunState::default();
-    run(
-        &mut t,
-        &mut state,
-        1.0,
-        &fit,
-        &val,
-        &[],
-        None,
-        |_, _| {},
-        |_| {},
-    )
-    .unwrap();
+    let (mut t, _) = train_quietly(c, &fit, &val);
     let trained = t.pyr.clone();
 
     // Loud noise in the finest level: removing it gains, so it goes.
