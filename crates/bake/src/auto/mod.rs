@@ -241,6 +241,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         loaded.val_frame(),
     )?;
 
+    let qat = opts.storage.qat_target(tr.pyr.levels.len());
     let (pyr, net, sh, out_ch, pruning) = if trained_psnr - classical_psnr < PRUNE_DB {
         // The network buys nothing: the classical texture's colour channels alone.
         decisions.push(Decision {
@@ -270,7 +271,21 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         let pruning = prune::prune(&mut tr, loaded.val(), PRUNE_DB)?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
-        phases.train_after_pruning = train_phase(&mut tr, &mut state, 1.0, &loaded, &progress)?;
+        // Quantised storage: the last part trains through the rounding it will get.
+        phases.train_after_pruning = match &qat {
+            Some(q) => {
+                let before = train_phase(
+                    &mut tr,
+                    &mut state,
+                    train::quantise::QAT_START,
+                    &loaded,
+                    &progress,
+                )?;
+                tr.set_qat(Some(q.clone()));
+                before + train_phase(&mut tr, &mut state, 1.0, &loaded, &progress)?
+            }
+            None => train_phase(&mut tr, &mut state, 1.0, &loaded, &progress)?,
+        };
         let (p, n) = prune::strip_channels(&tr.pyr, &tr.export_net(), &pruning.channels);
         (p, n, tr.sh_layer(), tr.out_ch, Some(pruning))
     };
@@ -292,6 +307,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             phases.train_after_pruning,
         ));
     }
+    let texture_only = pruning.is_none();
     let report = AutoReport {
         budget,
         validation_views: loaded.val_names(),
@@ -302,7 +318,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         untouched_texels: untouched,
         classical_psnr,
         trained_psnr,
-        texture_only: pruning.is_none(),
+        texture_only,
         pruning,
         unpruned_bytes,
         unpruned_ms,
@@ -317,6 +333,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         steps: tr.step,
         state,
         auto: Some(&report),
+        qat: if texture_only { None } else { qat },
     };
     pipeline::finish(&loaded, &parts, outcome, opts, t_start)
 }
