@@ -384,10 +384,7 @@ fn held_out_error_never_grows_with_the_default_presets_time_budget() {
     let psnr: Vec<(String, f64)> = ["10", "20", "40"]
         .iter()
         .map(|b| {
-            let r = bake_json(
-                &["--time-budget", b],
-                &dir.path().join(format!("t{b}.glb")),
-            );
+            let r = bake_json(&["--time-budget", b], &dir.path().join(format!("t{b}.glb")));
             (format!("{b} s"), r["testPsnr"].as_f64().unwrap())
         })
         .collect();
