@@ -171,10 +171,18 @@ pub fn evaluate_with(
         };
         // Masked-out pixels and those outside the undistorted photograph do not count.
         let error = view_error_masked(&mine, &truth, frame.valid.as_deref());
-        let regions = opts.regions.then(|| {
+        let regions = if opts.regions {
             let g = dnr_runtime::raster::rasterize(renderer.scene(), &frame.camera);
+            // The camera's own size must be the photograph's for the coverage to line up.
+            if g.coverage.len() != n || frame.valid.as_ref().is_some_and(|v| v.len() != n) {
+                return Err(EvalError::FrameData {
+                    frame: frame.name.clone(),
+                    width: w,
+                    height: h,
+                });
+            }
             let covered: Vec<bool> = g.coverage.iter().map(|&c| c != 0.0).collect();
-            regions::split(
+            Some(regions::split(
                 &on_white_u8(&mine),
                 &on_white_u8(&truth),
                 &frame.alpha,
@@ -182,8 +190,10 @@ pub fn evaluate_with(
                 frame.valid.as_deref(),
                 w as usize,
                 h as usize,
-            )
-        });
+            ))
+        } else {
+            None
+        };
         let image = match save {
             Some(dir) => {
                 let path = dir.join(format!("{}.png", frame_file_stem(&frame.name)));
