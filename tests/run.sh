@@ -31,6 +31,9 @@ mkdir -p target
 cargo build -p dnr-cli
 cargo test --workspace --no-fail-fast 2>&1 | tee "$root/target/cargo-test.log"
 
+step "crate documentation builds without warnings"
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace
+
 step "release tests (bake end to end)"
 cargo test --release -p dnr-bake --features e2e --test e2e_bake 2>&1 | tee -a "$root/target/cargo-test.log"
 

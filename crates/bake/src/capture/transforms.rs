@@ -7,7 +7,7 @@
 //! `scale`, `offset`, `applied_transform`, `mesh_path`, `frames`; in each frame: `file_path`,
 //! `transform_matrix`, `mask_path` and, overriding the top level key by key, every intrinsic
 //! and lens key above. Every other key is ignored and listed in
-//! [`TransformsFile::ignored_keys`] (`dnr-bake --verbose` prints them).
+//! the parsed file's `ignored_keys` (`dnr-bake --verbose` prints them).
 //!
 //! The JSON is walked as a `serde_json::Value` so every problem can name its field
 //! (`frames[3].transform_matrix[1][2]`). Python's `json.dump` writes the non-standard tokens
