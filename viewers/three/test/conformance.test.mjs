@@ -9,7 +9,7 @@ import { mkdirSync, readFileSync, existsSync } from 'node:fs';
 import { join, resolve } from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { serve } from '../scripts/serve.mjs';
-import { launch, openHarness, decodePng, compare, fromB64, readJson } from './lib.mjs';
+import { launch, openHarness, decodePng, compare, fromB64, readJson, lookAt } from './lib.mjs';
 
 const here = resolve(fileURLToPath(new URL('..', import.meta.url)));
 const repo = resolve(here, '..', '..');
@@ -30,21 +30,6 @@ let server;
 let browser;
 let page;
 const results = [];
-
-/** Camera of `dnr render --look-at E,T --fov F --size WxH` (dnr_runtime Camera::look_at). */
-function lookAt(eye, target, fovY, w, h) {
-  const sub = (a, b) => a.map((v, i) => v - b[i]);
-  const norm = (a) => { const l = Math.hypot(...a); return a.map((v) => v / l); };
-  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-  const fwd = norm(sub(target, eye));
-  let up = [0, 1, 0];
-  if (Math.hypot(...cross(fwd, up)) ** 2 < 1e-12) up = [0, 0, 1];
-  const z = fwd.map((v) => -v);
-  const x = norm(cross(up, z));
-  const y = cross(z, x);
-  const f = 0.5 * h / Math.tan(0.5 * fovY * Math.PI / 180);
-  return { fx: f, fy: f, cx: w / 2, cy: h / 2, width: w, height: h, camToWorld: [...x, 0, ...y, 0, ...z, 0, ...eye, 1] };
-}
 
 function dnrRender(asset, c, w, h, file) {
   execFileSync(bin('dnr'), ['render', asset, '--look-at', [...c.eye, ...c.target].join(','),
