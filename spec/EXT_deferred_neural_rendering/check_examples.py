@@ -580,8 +580,11 @@ def validate(gltf: dict) -> list[str]:
         if "sampler" in t and not 0 <= t["sampler"] < len(gltf.get("samplers", [])):
             codes.append("INDEX_OUT_OF_RANGE")
         for lv in t["levels"]:
-            if lv["mimeType"] != "image/x-exr":
+            if lv["mimeType"] not in ("image/x-exr", "image/png"):
                 codes.append("TEXTURE_MIME_TYPE")
+                continue
+            if (lv["mimeType"] == "image/png") != ("quantization" in lv):
+                codes.append("JSON_SCHEMA")
                 continue
             if not 0 <= lv["bufferView"] < len(gltf.get("bufferViews", [])):
                 codes.append("INDEX_OUT_OF_RANGE")
@@ -589,6 +592,9 @@ def validate(gltf: dict) -> list[str]:
             buf = view_bytes(gltf, lv["bufferView"])
             if buf is None:
                 codes.append("BUFFER_VIEW_OUT_OF_RANGE")
+                continue
+            if "quantization" in lv:
+                codes.extend(png_level_codes(lv, c, buf))
                 continue
             try:
                 info = exr_read(buf)
@@ -642,14 +648,19 @@ def validate(gltf: dict) -> list[str]:
                 codes.append("WEIGHTS_SHAPE_MISMATCH")
             seen.add(name)
             # Byte-level checks, independent of the name checks.
-            if wt["dtype"] not in ("f16", "f32"):
+            if wt["dtype"] not in ("f16", "f32", "int8"):
                 codes.append("WEIGHTS_DTYPE_UNKNOWN")
                 continue
             if not 0 <= wt["bufferView"] < len(gltf.get("bufferViews", [])):
                 codes.append("INDEX_OUT_OF_RANGE")
                 continue
             view = view_bytes(gltf, wt["bufferView"])
-            nbytes = math.prod(wt["shape"]) * (2 if wt["dtype"] == "f16" else 4)
+            n = math.prod(wt["shape"])
+            if wt["dtype"] == "int8":
+                # Revision 1.1: values, padding to 4 bytes, one f32 scale per first-axis row.
+                nbytes = (n + 3) // 4 * 4 + 4 * wt["shape"][0]
+            else:
+                nbytes = n * (2 if wt["dtype"] == "f16" else 4)
             off = wt.get("byteOffset", 0)
             if view is None or off + nbytes > len(view):
                 codes.append("BUFFER_VIEW_OUT_OF_RANGE")
@@ -728,7 +739,9 @@ def mutations(base: dict):
         ("inputChannels 9", m(lambda g: rend(g).update(inputChannels=9)),
          ["WEIGHTS_SHAPE_MISMATCH", "RENDERER_INPUT_MISMATCH"]),
         ("level width 5", m(lambda g: tex(g)["levels"][0].update(width=5)), ["EXR_SIZE_MISMATCH"]),
-        ("mime type png", m(lambda g: tex(g)["levels"][0].update(mimeType="image/png")),
+        ("mime type png without quantization",
+         m(lambda g: tex(g)["levels"][0].update(mimeType="image/png")), ["JSON_SCHEMA"]),
+        ("mime type webp", m(lambda g: tex(g)["levels"][0].update(mimeType="image/webp")),
          ["TEXTURE_MIME_TYPE"]),
         ("NaN texel", m(lambda g: _replace_view(g, 3, nan_exr)), ["EXR_NON_FINITE"]),
         ("9 EXR channels", m(lambda g: _replace_view(g, 3, exr9)), ["EXR_CHANNELS"]),
@@ -1030,7 +1043,39 @@ EXR_INVALID EXR_CHANNELS EXR_SIZE_MISMATCH EXR_COMPRESSION EXR_NON_FINITE SH_DEG
 SH_CHANNELS_OUT_OF_RANGE RENDERER_UNKNOWN_ARCHITECTURE RENDERER_PARAMETER_INVALID
 RENDERER_INPUT_MISMATCH RENDERER_OUTPUT_CHANNELS WEIGHTS_MISSING WEIGHTS_UNEXPECTED
 WEIGHTS_SHAPE_MISMATCH WEIGHTS_DTYPE_UNKNOWN WEIGHTS_MISALIGNED WEIGHTS_CHECKSUM_MISMATCH
-WEIGHTS_NON_FINITE LIMIT_EXCEEDED TEXCOORD_MISSING""".split()
+WEIGHTS_NON_FINITE LIMIT_EXCEEDED TEXCOORD_MISSING QUANT_BITS QUANT_ARRAY_LENGTH
+QUANT_SCALE_INVALID PNG_INVALID PNG_FORMAT PNG_SIZE_MISMATCH WEIGHTS_SCALE_INVALID""".split()
+
+
+def png_level_codes(lv, channels, buf):
+    """Revision 1.1 checks of a quantised PNG level (parameters, then the PNG header; the
+    pixels are not decoded by this reference)."""
+    q = lv["quantization"]
+    codes = []
+    bits = q.get("bits")
+    if bits not in (8, 4):
+        codes.append("QUANT_BITS")
+    scale, offset = q.get("scale", []), q.get("offset", [])
+    if len(scale) != channels or len(offset) != channels:
+        codes.append("QUANT_ARRAY_LENGTH")
+    top = 255 if bits not in (8, 4) else 2 ** bits - 1
+    for s_, o_ in zip(scale, offset):
+        s32 = struct.unpack("<f", struct.pack("<f", s_))[0] if abs(s_) < 3.5e38 else math.inf
+        if not (math.isfinite(s32) and s32 > 0 and math.isfinite(o_)
+                and abs(o_ + s32 * top) < 3.4e38):
+            codes.append("QUANT_SCALE_INVALID")
+            break
+    if codes:
+        return codes
+    if len(buf) < 33 or buf[:8] != b"\x89PNG\r\n\x1a\n" or buf[12:16] != b"IHDR":
+        return ["PNG_INVALID"]
+    w, h, depth, colour = struct.unpack(">IIBB", buf[16:26])
+    if depth != 8 or colour != 6:
+        return ["PNG_FORMAT"]
+    groups = -(-channels // (4 if bits == 8 else 8))
+    if (w, h) != (lv["width"], lv["height"] * groups):
+        return ["PNG_SIZE_MISMATCH"]
+    return []
 
 if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))

@@ -184,8 +184,8 @@ pub fn measure_on(
     )?;
     let container = builder.build_container().map_err(export_err)?;
     let bytes = part_bytes(&container)?;
-    let asset =
-        dnr_format::decode_asset(container, &dnr_format::Limits::unlimited()).map_err(export_err)?;
+    let asset = dnr_format::decode_asset(container, &dnr_format::Limits::unlimited())
+        .map_err(export_err)?;
     let read_back = |message: String| BakeError::ReadBack {
         path: "(in memory)".into(),
         message,
@@ -242,8 +242,8 @@ pub struct StorageReport {
     pub qat: Option<QatTarget>,
     /// Auto's trials in order (empty for the fixed encodings).
     pub trials: Vec<Trial>,
-    /// The same trained state in every uniform storage and the chosen one: bytes by part,
-    /// validation PSNR (`psnr`) and held-out test PSNR (`testPsnr`).
+    /// With quantised storage, the same trained state in every uniform storage and the
+    /// chosen one: bytes by part, validation and held-out test PSNR (empty for f16).
     pub variants: Vec<Variant>,
     /// Seconds spent choosing and measuring.
     pub seconds: f64,
@@ -338,12 +338,19 @@ pub fn choose(
         }
     };
     let mut variants = Vec::new();
-    for (name, s) in [
-        ("f16", f16.clone()),
-        ("q8", Storage::uniform(LevelStorage::Q8, n)),
-        ("q4", Storage::uniform(LevelStorage::Q4, n)),
-        ("chosen", chosen.clone()),
-    ] {
+    // f16 bakes (the default) cost nothing more than before; quantised ones measure every
+    // uniform storage of the same state for the report.
+    let compared = if mode == StorageMode::F16 {
+        Vec::new()
+    } else {
+        vec![
+            ("f16", f16.clone()),
+            ("q8", Storage::uniform(LevelStorage::Q8, n)),
+            ("q4", Storage::uniform(LevelStorage::Q4, n)),
+            ("chosen", chosen.clone()),
+        ]
+    };
+    for (name, s) in compared {
         let (bytes, psnr) = measure_on(loaded, parts, &s, &[&val, &loaded.capture.test])?;
         variants.push(Variant {
             name: name.into(),
@@ -358,7 +365,15 @@ pub fn choose(
         bound_db,
         chosen: chosen.describe(),
         levels: (0..n)
-            .map(|i| chosen.levels.get(i).copied().unwrap_or_default().name().into())
+            .map(|i| {
+                chosen
+                    .levels
+                    .get(i)
+                    .copied()
+                    .unwrap_or_default()
+                    .name()
+                    .into()
+            })
             .collect(),
         weights: chosen.weights.to_string(),
         qat,

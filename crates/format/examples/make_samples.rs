@@ -15,9 +15,8 @@ use dnr_format::exr_codec::{channel_name, encode_level};
 use dnr_format::model::{DType, Decoder, Normalization, Renderer, ViewDependence};
 use dnr_format::{
     architecture_tensors, AssetBuilder, Container, LevelCompression, LevelStorage, Limits,
-    MaterialDesc,
-    NeuralTextureDesc, Node, Primitive, RendererDesc, TensorF32, TextureLevel, WrapMode,
-    EXTENSION_NAME,
+    MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, TensorF32, TextureLevel,
+    WrapMode, EXTENSION_NAME,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -462,7 +461,12 @@ fn raw_png(w: u32, h: u32, color: png::ColorType, depth: png::BitDepth) -> Res<V
     let mut enc = png::Encoder::new(&mut out, w, h);
     enc.set_color(color);
     enc.set_depth(depth);
-    let samples = color.samples() * if depth == png::BitDepth::Sixteen { 2 } else { 1 };
+    let samples = color.samples()
+        * if depth == png::BitDepth::Sixteen {
+            2
+        } else {
+            1
+        };
     let mut wr = enc.write_header()?;
     wr.write_image_data(&vec![0u8; w as usize * h as usize * samples])?;
     wr.finish()?;
@@ -476,37 +480,98 @@ fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
     let set_q = |v: &mut Value, key: &str, value: Value| {
         ext(v)["neuralTextures"][0]["levels"][0]["quantization"][key] = value;
     };
-    let out = edit(q8, |v, _| set_q(v, "scale", json!([0.0, 0.01, 0.01, 0.01, 0.01, 0.01])))?;
-    w.put("invalid/quant_scale_zero.glb", &out, "revision 1.1: a quantised level's scale of channel 0 is 0", &["QUANT_SCALE_INVALID"])?;
+    let out = edit(q8, |v, _| {
+        set_q(v, "scale", json!([0.0, 0.01, 0.01, 0.01, 0.01, 0.01]))
+    })?;
+    w.put(
+        "invalid/quant_scale_zero.glb",
+        &out,
+        "revision 1.1: a quantised level's scale of channel 0 is 0",
+        &["QUANT_SCALE_INVALID"],
+    )?;
     // JSON has no NaN; a number beyond the f32 range reads as infinite.
-    let out = edit(q8, |v, _| set_q(v, "scale", json!([0.01, 1e39, 0.01, 0.01, 0.01, 0.01])))?;
-    w.put("invalid/quant_scale_infinite.glb", &out, "revision 1.1: a quantised level's scale is 1e39, infinite in f32 (JSON cannot hold NaN)", &["QUANT_SCALE_INVALID"])?;
-    let out = edit(q8, |v, _| set_q(v, "offset", json!([0.0, 0.0, 0.0, 0.0, 0.0])))?;
-    w.put("invalid/quant_offset_length.glb", &out, "revision 1.1: a quantised level's offset has 5 entries for 6 channels", &["QUANT_ARRAY_LENGTH"])?;
+    let out = edit(q8, |v, _| {
+        set_q(v, "scale", json!([0.01, 1e39, 0.01, 0.01, 0.01, 0.01]))
+    })?;
+    w.put(
+        "invalid/quant_scale_infinite.glb",
+        &out,
+        "revision 1.1: a quantised level's scale is 1e39, infinite in f32 (JSON cannot hold NaN)",
+        &["QUANT_SCALE_INVALID"],
+    )?;
+    let out = edit(q8, |v, _| {
+        set_q(v, "offset", json!([0.0, 0.0, 0.0, 0.0, 0.0]))
+    })?;
+    w.put(
+        "invalid/quant_offset_length.glb",
+        &out,
+        "revision 1.1: a quantised level's offset has 5 entries for 6 channels",
+        &["QUANT_ARRAY_LENGTH"],
+    )?;
     let out = edit(q8, |v, _| set_q(v, "bits", json!(16)))?;
-    w.put("invalid/quant_bits_16.glb", &out, "revision 1.1: a quantised level declares 16 bits", &["QUANT_BITS"])?;
+    w.put(
+        "invalid/quant_bits_16.glb",
+        &out,
+        "revision 1.1: a quantised level declares 16 bits",
+        &["QUANT_BITS"],
+    )?;
     let out = edit(q8, |v, _| {
         if let Some(o) = ext(v)["neuralTextures"][0]["levels"][0].as_object_mut() {
             o.remove("quantization");
         }
     })?;
-    w.put("invalid/png_level_without_quantization.glb", &out, "revision 1.1: an image/png level without its quantization object", &["JSON_SCHEMA"])?;
+    w.put(
+        "invalid/png_level_without_quantization.glb",
+        &out,
+        "revision 1.1: an image/png level without its quantization object",
+        &["JSON_SCHEMA"],
+    )?;
     let pngs: [(&str, Vec<u8>, &str, &'static str); 5] = [
-        ("png_rgb", raw_png(13, 20, png::ColorType::Rgb, png::BitDepth::Eight)?, "the level's PNG is RGB (3 channels), not RGBA", "PNG_FORMAT"),
-        ("png_16bit", raw_png(13, 20, png::ColorType::Rgba, png::BitDepth::Sixteen)?, "the level's PNG is RGBA at 16 bits per sample", "PNG_FORMAT"),
-        ("png_size_mismatch", raw_png(13, 10, png::ColorType::Rgba, png::BitDepth::Eight)?, "the level's PNG is 13x10, 6 channels at 8 bits need 13x20", "PNG_SIZE_MISMATCH"),
-        ("png_truncated", {
-            let good = raw_png(13, 20, png::ColorType::Rgba, png::BitDepth::Eight)?;
-            good[..good.len() - 20].to_vec()
-        }, "the level's PNG is cut before its last chunks", "PNG_INVALID"),
-        ("png_not_png", b"\x89PNX not a PNG file at all".to_vec(), "the level's bytes do not start with the PNG signature", "PNG_INVALID"),
+        (
+            "png_rgb",
+            raw_png(13, 20, png::ColorType::Rgb, png::BitDepth::Eight)?,
+            "the level's PNG is RGB (3 channels), not RGBA",
+            "PNG_FORMAT",
+        ),
+        (
+            "png_16bit",
+            raw_png(13, 20, png::ColorType::Rgba, png::BitDepth::Sixteen)?,
+            "the level's PNG is RGBA at 16 bits per sample",
+            "PNG_FORMAT",
+        ),
+        (
+            "png_size_mismatch",
+            raw_png(13, 10, png::ColorType::Rgba, png::BitDepth::Eight)?,
+            "the level's PNG is 13x10, 6 channels at 8 bits need 13x20",
+            "PNG_SIZE_MISMATCH",
+        ),
+        (
+            "png_truncated",
+            {
+                let good = raw_png(13, 20, png::ColorType::Rgba, png::BitDepth::Eight)?;
+                good[..good.len() - 20].to_vec()
+            },
+            "the level's PNG is cut before its last chunks",
+            "PNG_INVALID",
+        ),
+        (
+            "png_not_png",
+            b"\x89PNX not a PNG file at all".to_vec(),
+            "the level's bytes do not start with the PNG signature",
+            "PNG_INVALID",
+        ),
     ];
     for (name, bytes, what, code) in pngs {
         let out = edit(q8, |v, bin| {
             let view = as_usize(&level(v)["bufferView"]);
             replace_view(v, bin, view, &bytes);
         })?;
-        w.put(&format!("invalid/{name}.glb"), &out, &format!("revision 1.1: {what}"), &[code])?;
+        w.put(
+            &format!("invalid/{name}.glb"),
+            &out,
+            &format!("revision 1.1: {what}"),
+            &[code],
+        )?;
     }
     // int8: zero the first row scale of the first int8 tensor, with a matching CRC so only the
     // scale is wrong.
@@ -514,16 +579,30 @@ fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
         let d = ext(v)["renderers"][0]["weights"][0].clone();
         let view = &v["bufferViews"][as_usize(&d["bufferView"])];
         let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
-        let n: usize = d["shape"].as_array().map_or(0, |s| s.iter().map(as_usize).product());
+        let n: usize = d["shape"]
+            .as_array()
+            .map_or(0, |s| s.iter().map(as_usize).product());
         let rows = d["shape"][0].as_u64().unwrap_or(1) as usize;
         let at = start + n.next_multiple_of(4);
         bin[at..at + 4].copy_from_slice(&0.0f32.to_le_bytes());
         let crc = crc32fast::hash(&bin[start..at + 4 * rows]);
         ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
     })?;
-    w.put("invalid/int8_scale_zero.glb", &out, "revision 1.1: an int8 tensor's first row scale is 0 (its CRC-32 matches)", &["WEIGHTS_SCALE_INVALID"])?;
-    let out = edit(int8, |v, _| ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("int4"))?;
-    w.put("invalid/weights_dtype_int4.glb", &out, "a tensor's dtype is int4, which no revision defines", &["WEIGHTS_DTYPE_UNKNOWN"])?;
+    w.put(
+        "invalid/int8_scale_zero.glb",
+        &out,
+        "revision 1.1: an int8 tensor's first row scale is 0 (its CRC-32 matches)",
+        &["WEIGHTS_SCALE_INVALID"],
+    )?;
+    let out = edit(int8, |v, _| {
+        ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("int4")
+    })?;
+    w.put(
+        "invalid/weights_dtype_int4.glb",
+        &out,
+        "a tensor's dtype is int4, which no revision defines",
+        &["WEIGHTS_DTYPE_UNKNOWN"],
+    )?;
     Ok(())
 }
 

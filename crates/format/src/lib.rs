@@ -75,7 +75,8 @@ pub use architecture::{architecture_tensors, renderer_problems};
 pub use asset::{
     decode_asset, read_asset, read_asset_from_slice, read_asset_from_slice_with_limits,
     read_asset_with_limits, write_asset, Asset, AssetBuilder, DecodedRenderer, DecodedTexture,
-    FallbackProblem, LevelStorage, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, WrapMode,
+    FallbackProblem, LevelStorage, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc,
+    WrapMode,
 };
 pub use container::Container;
 pub use error::{Error, Result};

@@ -147,7 +147,10 @@ pub fn encode_png_level(level: &TextureLevel, bits: u32) -> Result<(Quantization
     let per = channels_per_texel(bits)
         .ok_or_else(|| Error::invalid(format!("quantisation to {bits} bits")))?;
     if let Some(i) = level.data.iter().position(|v| !v.is_finite()) {
-        return Err(Error::invalid(format!("texel value {i} is {}", level.data[i])));
+        return Err(Error::invalid(format!(
+            "texel value {i} is {}",
+            level.data[i]
+        )));
     }
     let (w, h, c) = (
         level.width as usize,
@@ -278,7 +281,10 @@ pub fn decode_png_rgba8(
     let frame = reader.next_frame(&mut buf).map_err(bad)?;
     buf.truncate(frame.buffer_size());
     if buf.len() != width as usize * height as usize * 4 {
-        return Err(Problem::invalid("PNG_INVALID", "PNG pixel data has the wrong length"));
+        return Err(Problem::invalid(
+            "PNG_INVALID",
+            "PNG pixel data has the wrong length",
+        ));
     }
     Ok(buf)
 }
@@ -333,19 +339,31 @@ mod tests {
         let code = |r: std::result::Result<TextureLevel, Problem>| r.unwrap_err().code;
         let mut z = q.clone();
         z.scale[1] = 0.0;
-        assert_eq!(code(decode_png_level(&png, expect, &z, &lim)), "QUANT_SCALE_INVALID");
+        assert_eq!(
+            code(decode_png_level(&png, expect, &z, &lim)),
+            "QUANT_SCALE_INVALID"
+        );
         z.scale[1] = f32::NAN;
-        assert_eq!(code(decode_png_level(&png, expect, &z, &lim)), "QUANT_SCALE_INVALID");
+        assert_eq!(
+            code(decode_png_level(&png, expect, &z, &lim)),
+            "QUANT_SCALE_INVALID"
+        );
         let mut b = q.clone();
         b.bits = 6;
         assert_eq!(code(decode_png_level(&png, expect, &b, &lim)), "QUANT_BITS");
         let mut s = q.clone();
         s.offset.pop();
-        assert_eq!(code(decode_png_level(&png, expect, &s, &lim)), "QUANT_ARRAY_LENGTH");
+        assert_eq!(
+            code(decode_png_level(&png, expect, &s, &lim)),
+            "QUANT_ARRAY_LENGTH"
+        );
         // The same PNG read as 8-bit needs twice the height.
         let mut e = q.clone();
         e.bits = 8;
-        assert_eq!(code(decode_png_level(&png, expect, &e, &lim)), "PNG_SIZE_MISMATCH");
+        assert_eq!(
+            code(decode_png_level(&png, expect, &e, &lim)),
+            "PNG_SIZE_MISMATCH"
+        );
         let rgb = {
             let mut out = Vec::new();
             let mut enc = png::Encoder::new(&mut out, 4, 4);
@@ -360,6 +378,9 @@ mod tests {
             code(decode_png_level(&png[..png.len() / 2], expect, &q, &lim)),
             "PNG_INVALID"
         );
-        assert_eq!(code(decode_png_level(b"not a png", expect, &q, &lim)), "PNG_INVALID");
+        assert_eq!(
+            code(decode_png_level(b"not a png", expect, &q, &lim)),
+            "PNG_INVALID"
+        );
     }
 }

@@ -283,7 +283,10 @@ mod tests {
         let w = TensorF32::new(vec![3, 2], vec![0.5, -0.25, 0.0, 0.0, 3.0, 1.0]).unwrap();
         let b = TensorF32::new(vec![3], vec![0.1, 0.2, 0.3]).unwrap();
         let (blob, d) = pack_tensors([("w", &w), ("b", &b)], &DType::Int8, 0).unwrap();
-        assert_eq!((d[0].dtype.clone(), d[1].dtype.clone()), (DType::Int8, DType::F16));
+        assert_eq!(
+            (d[0].dtype.clone(), d[1].dtype.clone()),
+            (DType::Int8, DType::F16)
+        );
         // 6 values, 2 bytes padding, 3 scales.
         assert_eq!(d[0].byte_length(), Some(8 + 12));
         assert_eq!(d[1].byte_offset, 20);

@@ -439,8 +439,7 @@ impl Trainer {
     fn features_of(&self, pyr: &Pyramid, v: &View) -> Result<Tensor, TrainError> {
         // sample_into writes every value.
         let mut x = Tensor::scratch(pyr.channels, v.height(), v.width());
-        sample_into(pyr, &v.gbuf, &mut x.data)
-            .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        sample_into(pyr, &v.gbuf, &mut x.data).map_err(|e| TrainError::Kernel(e.to_string()))?;
         self.sh_modulate(v, &mut x.data)?;
         Ok(x)
     }
