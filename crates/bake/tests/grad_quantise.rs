@@ -8,6 +8,9 @@
 //! stored values (the forward really runs on them), and that the backward's taps do not
 //! depend on the values, so computing them from either pyramid gives the same result.
 
+// Index loops mirror the math (level k, value i) and perturb copies in place.
+#![allow(clippy::needless_range_loop)]
+
 mod capture_common;
 
 use dnr_bake::capture::{Capture, LoadOptions};
