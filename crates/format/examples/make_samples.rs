@@ -997,12 +997,13 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     )?;
 
     let out = edit(&base, |v, _| {
-        ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/png")
+        // Revision 1.1 defines image/png (with quantization); webp is in no revision.
+        ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/webp")
     })?;
     w.put(
         "invalid/texture_mime_type.glb",
         &out,
-        "level mimeType image/png",
+        "level mimeType image/webp (no revision defines it)",
         &["TEXTURE_MIME_TYPE"],
     )?;
 
