@@ -291,10 +291,31 @@ def tensor_bytes(values: list[float], dtype: str) -> bytes:
     return struct.pack(f"<{len(values)}{fmt}", *values)
 
 
+# Smallest magnitude that rounds to an f32 infinity (round to nearest even).
+F32_OVERFLOW = 2.0 ** 128 - 2.0 ** 103
+
+
 def tensor_values(buf: bytes, dtype: str) -> tuple[float, ...]:
     size = {"f16": 2, "f32": 4}[dtype]
     fmt = {"f16": "e", "f32": "f"}[dtype]
     return struct.unpack(f"<{len(buf) // size}{fmt}", buf)
+
+
+def int8_codes(buf: bytes, shape: list[int]) -> list[str]:
+    """Revision 1.1 checks of an int8 tensor's bytes (values, padding, one f32 scale per
+    first-axis row): every scale finite and > 0, every value scale * q finite in f32."""
+    n = math.prod(shape)
+    rows = shape[0] if shape else 1
+    at = (n + 3) // 4 * 4
+    scales = struct.unpack(f"<{rows}f", buf[at:at + 4 * rows])
+    if any(not (math.isfinite(sc) and sc > 0) for sc in scales):
+        return ["WEIGHTS_SCALE_INVALID"]
+    per = max(n // rows, 1) if rows else 1
+    q = struct.unpack(f"<{n}b", buf[:n])
+    # The product of an f32 and an integer below 2^8 is exact in f64.
+    if any(abs(scales[i // per] * v) >= F32_OVERFLOW for i, v in enumerate(q)):
+        return ["WEIGHTS_NON_FINITE"]
+    return []
 
 
 # --------------------------------------------------------------------------------------------
@@ -670,7 +691,9 @@ def validate(gltf: dict) -> list[str]:
             data = view[off:off + nbytes]
             if zlib.crc32(data) != wt["crc32"]:
                 codes.append("WEIGHTS_CHECKSUM_MISMATCH")
-            if any(not math.isfinite(x) for x in tensor_values(data, wt["dtype"])):
+            if wt["dtype"] == "int8":
+                codes += int8_codes(data, wt["shape"])
+            elif any(not math.isfinite(x) for x in tensor_values(data, wt["dtype"])):
                 codes.append("WEIGHTS_NON_FINITE")
         if want is not None and set(want) - seen:
             codes.append("WEIGHTS_MISSING")
@@ -697,6 +720,33 @@ def _replace_view(g: dict, vi: int, new: bytes) -> None:
     g["buffers"][v["buffer"]].update(
         byteLength=len(data),
         uri="data:application/octet-stream;base64," + base64.b64encode(data).decode())
+
+
+def _store_int8(g: dict, ti: int, row0_scale: float | None = None) -> None:
+    """Re-stores tensor ti of the first renderer as int8 (scale max |w| / 127 per first-axis
+    row) in a new buffer view with its CRC; row0_scale, if given, replaces row 0's scale."""
+    w = g["extensions"][EXT]["renderers"][0]["weights"][ti]
+    n, rows = math.prod(w["shape"]), w["shape"][0]
+    size = 2 if w["dtype"] == "f16" else 4
+    off = w.get("byteOffset", 0)
+    vals = tensor_values(view_bytes(g, w["bufferView"])[off:off + n * size], w["dtype"])
+    per = n // rows
+    f32 = lambda x: struct.unpack("<f", struct.pack("<f", x))[0]  # noqa: E731
+    scales = [f32(max(abs(v) for v in vals[r * per:(r + 1) * per]) / 127) or 1.0
+              for r in range(rows)]
+    q = [max(-127, min(127, round(v / scales[i // per]))) for i, v in enumerate(vals)]
+    if row0_scale is not None:
+        scales[0] = row0_scale
+    blob = struct.pack(f"<{n}b", *q) + b"\0" * (-n % 4) + struct.pack(f"<{rows}f", *scales)
+    data = _buffer_bytes(g, 0)
+    data += b"\0" * (-len(data) % 4)
+    g["bufferViews"].append({"buffer": 0, "byteOffset": len(data), "byteLength": len(blob)})
+    data += blob
+    g["buffers"][0].update(
+        byteLength=len(data),
+        uri="data:application/octet-stream;base64," + base64.b64encode(data).decode())
+    w.update(bufferView=len(g["bufferViews"]) - 1, byteOffset=0, dtype="int8",
+             crc32=zlib.crc32(blob))
 
 
 def mutations(base: dict):
@@ -782,6 +832,12 @@ def mutations(base: dict):
                                            view_bytes(g, 6)[144:144 + 128])))),
          ["WEIGHTS_NON_FINITE"]),
         ("TEXCOORD_1", m(lambda g: binding(g).update(texCoord=1)), ["TEXCOORD_MISSING"]),
+        ("int8 weight matrix", m(lambda g: _store_int8(g, 0)), []),
+        ("int8 row scale 0", m(lambda g: _store_int8(g, 0, 0.0)), ["WEIGHTS_SCALE_INVALID"]),
+        ("int8 row scale NaN", m(lambda g: _store_int8(g, 0, math.nan)),
+         ["WEIGHTS_SCALE_INVALID"]),
+        ("int8 row scale 3e38 (scale * q overflows f32)",
+         m(lambda g: _store_int8(g, 0, 3e38)), ["WEIGHTS_NON_FINITE"]),
     ]
 
 

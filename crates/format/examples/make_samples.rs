@@ -573,26 +573,34 @@ fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
             &[code],
         )?;
     }
-    // int8: zero the first row scale of the first int8 tensor, with a matching CRC so only the
-    // scale is wrong.
-    let out = edit(int8, |v, bin| {
-        let d = ext(v)["renderers"][0]["weights"][0].clone();
-        let view = &v["bufferViews"][as_usize(&d["bufferView"])];
-        let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
-        let n: usize = d["shape"]
-            .as_array()
-            .map_or(0, |s| s.iter().map(as_usize).product());
-        let rows = d["shape"][0].as_u64().unwrap_or(1) as usize;
-        let at = start + n.next_multiple_of(4);
-        bin[at..at + 4].copy_from_slice(&0.0f32.to_le_bytes());
-        let crc = crc32fast::hash(&bin[start..at + 4 * rows]);
-        ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
-    })?;
+    // int8: replace the first row scale of the first int8 tensor, with a matching CRC so only
+    // the scale is wrong: 0, and f32::MAX (finite, but scale * q overflows).
+    let set_row0_scale = |scale: f32| {
+        edit(int8, move |v, bin| {
+            let d = ext(v)["renderers"][0]["weights"][0].clone();
+            let view = &v["bufferViews"][as_usize(&d["bufferView"])];
+            let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
+            let n: usize = d["shape"]
+                .as_array()
+                .map_or(0, |s| s.iter().map(as_usize).product());
+            let rows = d["shape"][0].as_u64().unwrap_or(1) as usize;
+            let at = start + n.next_multiple_of(4);
+            bin[at..at + 4].copy_from_slice(&scale.to_le_bytes());
+            let crc = crc32fast::hash(&bin[start..at + 4 * rows]);
+            ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
+        })
+    };
     w.put(
         "invalid/int8_scale_zero.glb",
-        &out,
+        &set_row0_scale(0.0)?,
         "revision 1.1: an int8 tensor's first row scale is 0 (its CRC-32 matches)",
         &["WEIGHTS_SCALE_INVALID"],
+    )?;
+    w.put(
+        "invalid/int8_scale_overflow.glb",
+        &set_row0_scale(f32::MAX)?,
+        "revision 1.1: an int8 tensor's first row scale is f32::MAX, so scale * q overflows (its CRC-32 matches)",
+        &["WEIGHTS_NON_FINITE"],
     )?;
     let out = edit(int8, |v, _| {
         ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("int4")

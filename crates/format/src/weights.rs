@@ -149,6 +149,31 @@ pub fn int8_scales(bytes: &[u8], shape: &[u32]) -> Option<Vec<f32>> {
     )
 }
 
+/// Values of an `int8` tensor's bytes that decode to an infinity (`scale * q` overflows
+/// `f32`); 0 when the bytes are too short to hold the values and scales. Scales that are not
+/// finite and above 0 are not counted here (they are a problem of their own).
+pub fn int8_non_finite(bytes: &[u8], shape: &[u32]) -> usize {
+    let Some(scales) = int8_scales(bytes, shape) else {
+        return 0;
+    };
+    let Some(n) = element_count(shape)
+        .ok()
+        .and_then(|n| usize::try_from(n).ok())
+    else {
+        return 0;
+    };
+    // `int8_scales` found the scales after the values, so `n <= bytes.len()`.
+    let per = (n / scales.len().max(1)).max(1);
+    bytes[..n]
+        .iter()
+        .enumerate()
+        .filter(|&(i, &b)| {
+            let s = scales[i / per];
+            s.is_finite() && s > 0.0 && !int8_dequantise(b as i8, s).is_finite()
+        })
+        .count()
+}
+
 /// Decodes exactly `product(shape)` elements of `dtype` from the start of `bytes`,
 /// after checking the count against `limits.max_weight_elements`.
 pub fn decode_tensor(
@@ -300,6 +325,14 @@ mod tests {
         zero[8..12].copy_from_slice(&0.0f32.to_le_bytes());
         assert!(decode_tensor(&zero, &w.shape, &DType::Int8, &Limits::default()).is_err());
         assert!(decode_tensor(&blob[..10], &w.shape, &DType::Int8, &Limits::default()).is_err());
+        assert_eq!(int8_non_finite(&blob, &w.shape), 0);
+        assert_eq!(int8_non_finite(&blob[..10], &w.shape), 0);
+        // A finite scale whose product with a stored value overflows: row 0 holds 127 and -64.
+        let mut huge = blob.clone();
+        huge[8..12].copy_from_slice(&f32::MAX.to_le_bytes());
+        assert_eq!(int8_non_finite(&huge, &w.shape), 2);
+        let back = decode_tensor(&huge, &w.shape, &DType::Int8, &Limits::default()).unwrap();
+        assert!(back[..2].iter().all(|v| v.is_infinite()));
     }
 
     #[test]

@@ -76,7 +76,7 @@ pub const CODES: &[CodeInfo] = &[
     row("WEIGHTS_DTYPE_UNKNOWN", E, "A tensor's dtype is not f16, f32 or int8."),
     row("WEIGHTS_MISALIGNED", E, "A tensor's byteOffset (or its bufferView's) is not a multiple of 4."),
     row("WEIGHTS_CHECKSUM_MISMATCH", E, "A tensor's CRC-32 differs from its crc32 property."),
-    row("WEIGHTS_NON_FINITE", E, "A tensor holds NaN or infinite values."),
+    row("WEIGHTS_NON_FINITE", E, "A tensor holds NaN or infinite values (int8: scale * q overflows f32)."),
     row("WEIGHTS_SCALE_INVALID", E, "An int8 tensor has a row scale that is zero, negative or not finite."),
     row("LIMIT_EXCEEDED", E, "A size exceeds the validator's configured limits (raise them for trusted inputs)."),
     row("TEXCOORD_MISSING", W, "A primitive with the extension lacks the TEXCOORD_n attribute its binding names."),

@@ -964,6 +964,18 @@ fn check_renderer(
                         w.name
                     ),
                 );
+            } else {
+                let overflows = crate::weights::int8_non_finite(bytes, &w.shape);
+                if overflows > 0 {
+                    ctx.report(
+                        "WEIGHTS_NON_FINITE",
+                        &p,
+                        format!(
+                            "int8 tensor `{}` has {overflows} values whose scale * q overflows f32",
+                            w.name
+                        ),
+                    );
+                }
             }
             continue;
         }
