@@ -47,8 +47,11 @@ cargo run -q -p dnr-bake --example make_phone_capture -- "$phone" --size 240x180
 cargo run -q -p dnr-bake -- "$phone/phone" -o "$phone/assets/phone.glb" --preset fast --steps 30
 NODE_PATH="$tools/node/node_modules" node tests/scripts/gltf_validator.mjs "$phone/assets"
 
-step "reference OpenEXR decode of every level in samples/valid"
+step "reference OpenEXR decode of every EXR level in samples/valid"
 "$tools/venv/bin/python" tests/scripts/check_exr.py samples/valid
+
+step "reference PNG decode and dequantisation of every quantised level in samples/valid"
+"$tools/venv/bin/python" tests/scripts/check_png_levels.py samples/valid
 
 step "spec examples against the JSON Schema"
 "$tools/venv/bin/python" spec/EXT_deferred_neural_rendering/check_examples.py

@@ -291,10 +291,31 @@ def tensor_bytes(values: list[float], dtype: str) -> bytes:
     return struct.pack(f"<{len(values)}{fmt}", *values)
 
 
+# Smallest magnitude that rounds to an f32 infinity (round to nearest even).
+F32_OVERFLOW = 2.0 ** 128 - 2.0 ** 103
+
+
 def tensor_values(buf: bytes, dtype: str) -> tuple[float, ...]:
     size = {"f16": 2, "f32": 4}[dtype]
     fmt = {"f16": "e", "f32": "f"}[dtype]
     return struct.unpack(f"<{len(buf) // size}{fmt}", buf)
+
+
+def int8_codes(buf: bytes, shape: list[int]) -> list[str]:
+    """Revision 1.1 checks of an int8 tensor's bytes (values, padding, one f32 scale per
+    first-axis row): every scale finite and > 0, every value scale * q finite in f32."""
+    n = math.prod(shape)
+    rows = shape[0] if shape else 1
+    at = (n + 3) // 4 * 4
+    scales = struct.unpack(f"<{rows}f", buf[at:at + 4 * rows])
+    if any(not (math.isfinite(sc) and sc > 0) for sc in scales):
+        return ["WEIGHTS_SCALE_INVALID"]
+    per = max(n // rows, 1) if rows else 1
+    q = struct.unpack(f"<{n}b", buf[:n])
+    # The product of an f32 and an integer below 2^8 is exact in f64.
+    if any(abs(scales[i // per] * v) >= F32_OVERFLOW for i, v in enumerate(q)):
+        return ["WEIGHTS_NON_FINITE"]
+    return []
 
 
 # --------------------------------------------------------------------------------------------
@@ -580,8 +601,11 @@ def validate(gltf: dict) -> list[str]:
         if "sampler" in t and not 0 <= t["sampler"] < len(gltf.get("samplers", [])):
             codes.append("INDEX_OUT_OF_RANGE")
         for lv in t["levels"]:
-            if lv["mimeType"] != "image/x-exr":
+            if lv["mimeType"] not in ("image/x-exr", "image/png"):
                 codes.append("TEXTURE_MIME_TYPE")
+                continue
+            if (lv["mimeType"] == "image/png") != ("quantization" in lv):
+                codes.append("JSON_SCHEMA")
                 continue
             if not 0 <= lv["bufferView"] < len(gltf.get("bufferViews", [])):
                 codes.append("INDEX_OUT_OF_RANGE")
@@ -589,6 +613,9 @@ def validate(gltf: dict) -> list[str]:
             buf = view_bytes(gltf, lv["bufferView"])
             if buf is None:
                 codes.append("BUFFER_VIEW_OUT_OF_RANGE")
+                continue
+            if "quantization" in lv:
+                codes.extend(png_level_codes(lv, c, buf))
                 continue
             try:
                 info = exr_read(buf)
@@ -642,14 +669,19 @@ def validate(gltf: dict) -> list[str]:
                 codes.append("WEIGHTS_SHAPE_MISMATCH")
             seen.add(name)
             # Byte-level checks, independent of the name checks.
-            if wt["dtype"] not in ("f16", "f32"):
+            if wt["dtype"] not in ("f16", "f32", "int8"):
                 codes.append("WEIGHTS_DTYPE_UNKNOWN")
                 continue
             if not 0 <= wt["bufferView"] < len(gltf.get("bufferViews", [])):
                 codes.append("INDEX_OUT_OF_RANGE")
                 continue
             view = view_bytes(gltf, wt["bufferView"])
-            nbytes = math.prod(wt["shape"]) * (2 if wt["dtype"] == "f16" else 4)
+            n = math.prod(wt["shape"])
+            if wt["dtype"] == "int8":
+                # Revision 1.1: values, padding to 4 bytes, one f32 scale per first-axis row.
+                nbytes = (n + 3) // 4 * 4 + 4 * wt["shape"][0]
+            else:
+                nbytes = n * (2 if wt["dtype"] == "f16" else 4)
             off = wt.get("byteOffset", 0)
             if view is None or off + nbytes > len(view):
                 codes.append("BUFFER_VIEW_OUT_OF_RANGE")
@@ -659,7 +691,9 @@ def validate(gltf: dict) -> list[str]:
             data = view[off:off + nbytes]
             if zlib.crc32(data) != wt["crc32"]:
                 codes.append("WEIGHTS_CHECKSUM_MISMATCH")
-            if any(not math.isfinite(x) for x in tensor_values(data, wt["dtype"])):
+            if wt["dtype"] == "int8":
+                codes += int8_codes(data, wt["shape"])
+            elif any(not math.isfinite(x) for x in tensor_values(data, wt["dtype"])):
                 codes.append("WEIGHTS_NON_FINITE")
         if want is not None and set(want) - seen:
             codes.append("WEIGHTS_MISSING")
@@ -686,6 +720,33 @@ def _replace_view(g: dict, vi: int, new: bytes) -> None:
     g["buffers"][v["buffer"]].update(
         byteLength=len(data),
         uri="data:application/octet-stream;base64," + base64.b64encode(data).decode())
+
+
+def _store_int8(g: dict, ti: int, row0_scale: float | None = None) -> None:
+    """Re-stores tensor ti of the first renderer as int8 (scale max |w| / 127 per first-axis
+    row) in a new buffer view with its CRC; row0_scale, if given, replaces row 0's scale."""
+    w = g["extensions"][EXT]["renderers"][0]["weights"][ti]
+    n, rows = math.prod(w["shape"]), w["shape"][0]
+    size = 2 if w["dtype"] == "f16" else 4
+    off = w.get("byteOffset", 0)
+    vals = tensor_values(view_bytes(g, w["bufferView"])[off:off + n * size], w["dtype"])
+    per = n // rows
+    f32 = lambda x: struct.unpack("<f", struct.pack("<f", x))[0]  # noqa: E731
+    scales = [f32(max(abs(v) for v in vals[r * per:(r + 1) * per]) / 127) or 1.0
+              for r in range(rows)]
+    q = [max(-127, min(127, round(v / scales[i // per]))) for i, v in enumerate(vals)]
+    if row0_scale is not None:
+        scales[0] = row0_scale
+    blob = struct.pack(f"<{n}b", *q) + b"\0" * (-n % 4) + struct.pack(f"<{rows}f", *scales)
+    data = _buffer_bytes(g, 0)
+    data += b"\0" * (-len(data) % 4)
+    g["bufferViews"].append({"buffer": 0, "byteOffset": len(data), "byteLength": len(blob)})
+    data += blob
+    g["buffers"][0].update(
+        byteLength=len(data),
+        uri="data:application/octet-stream;base64," + base64.b64encode(data).decode())
+    w.update(bufferView=len(g["bufferViews"]) - 1, byteOffset=0, dtype="int8",
+             crc32=zlib.crc32(blob))
 
 
 def mutations(base: dict):
@@ -728,7 +789,9 @@ def mutations(base: dict):
         ("inputChannels 9", m(lambda g: rend(g).update(inputChannels=9)),
          ["WEIGHTS_SHAPE_MISMATCH", "RENDERER_INPUT_MISMATCH"]),
         ("level width 5", m(lambda g: tex(g)["levels"][0].update(width=5)), ["EXR_SIZE_MISMATCH"]),
-        ("mime type png", m(lambda g: tex(g)["levels"][0].update(mimeType="image/png")),
+        ("mime type png without quantization",
+         m(lambda g: tex(g)["levels"][0].update(mimeType="image/png")), ["JSON_SCHEMA"]),
+        ("mime type webp", m(lambda g: tex(g)["levels"][0].update(mimeType="image/webp")),
          ["TEXTURE_MIME_TYPE"]),
         ("NaN texel", m(lambda g: _replace_view(g, 3, nan_exr)), ["EXR_NON_FINITE"]),
         ("9 EXR channels", m(lambda g: _replace_view(g, 3, exr9)), ["EXR_CHANNELS"]),
@@ -769,6 +832,12 @@ def mutations(base: dict):
                                            view_bytes(g, 6)[144:144 + 128])))),
          ["WEIGHTS_NON_FINITE"]),
         ("TEXCOORD_1", m(lambda g: binding(g).update(texCoord=1)), ["TEXCOORD_MISSING"]),
+        ("int8 weight matrix", m(lambda g: _store_int8(g, 0)), []),
+        ("int8 row scale 0", m(lambda g: _store_int8(g, 0, 0.0)), ["WEIGHTS_SCALE_INVALID"]),
+        ("int8 row scale NaN", m(lambda g: _store_int8(g, 0, math.nan)),
+         ["WEIGHTS_SCALE_INVALID"]),
+        ("int8 row scale 3e38 (scale * q overflows f32)",
+         m(lambda g: _store_int8(g, 0, 3e38)), ["WEIGHTS_NON_FINITE"]),
     ]
 
 
@@ -1030,7 +1099,39 @@ EXR_INVALID EXR_CHANNELS EXR_SIZE_MISMATCH EXR_COMPRESSION EXR_NON_FINITE SH_DEG
 SH_CHANNELS_OUT_OF_RANGE RENDERER_UNKNOWN_ARCHITECTURE RENDERER_PARAMETER_INVALID
 RENDERER_INPUT_MISMATCH RENDERER_OUTPUT_CHANNELS WEIGHTS_MISSING WEIGHTS_UNEXPECTED
 WEIGHTS_SHAPE_MISMATCH WEIGHTS_DTYPE_UNKNOWN WEIGHTS_MISALIGNED WEIGHTS_CHECKSUM_MISMATCH
-WEIGHTS_NON_FINITE LIMIT_EXCEEDED TEXCOORD_MISSING""".split()
+WEIGHTS_NON_FINITE LIMIT_EXCEEDED TEXCOORD_MISSING QUANT_BITS QUANT_ARRAY_LENGTH
+QUANT_SCALE_INVALID PNG_INVALID PNG_FORMAT PNG_SIZE_MISMATCH WEIGHTS_SCALE_INVALID""".split()
+
+
+def png_level_codes(lv, channels, buf):
+    """Revision 1.1 checks of a quantised PNG level (parameters, then the PNG header; the
+    pixels are not decoded by this reference)."""
+    q = lv["quantization"]
+    codes = []
+    bits = q.get("bits")
+    if bits not in (8, 4):
+        codes.append("QUANT_BITS")
+    scale, offset = q.get("scale", []), q.get("offset", [])
+    if len(scale) != channels or len(offset) != channels:
+        codes.append("QUANT_ARRAY_LENGTH")
+    top = 255 if bits not in (8, 4) else 2 ** bits - 1
+    for s_, o_ in zip(scale, offset):
+        s32 = struct.unpack("<f", struct.pack("<f", s_))[0] if abs(s_) < 3.5e38 else math.inf
+        if not (math.isfinite(s32) and s32 > 0 and math.isfinite(o_)
+                and abs(o_ + s32 * top) < 3.4e38):
+            codes.append("QUANT_SCALE_INVALID")
+            break
+    if codes:
+        return codes
+    if len(buf) < 33 or buf[:8] != b"\x89PNG\r\n\x1a\n" or buf[12:16] != b"IHDR":
+        return ["PNG_INVALID"]
+    w, h, depth, colour = struct.unpack(">IIBB", buf[16:26])
+    if depth != 8 or colour != 6:
+        return ["PNG_FORMAT"]
+    groups = -(-channels // (4 if bits == 8 else 8))
+    if (w, h) != (lv["width"], lv["height"] * groups):
+        return ["PNG_SIZE_MISMATCH"]
+    return []
 
 if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))

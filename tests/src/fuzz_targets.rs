@@ -42,19 +42,41 @@ pub fn exr_level(data: &[u8]) {
     let _ = decode_level(rest, expect, &fuzz_limits());
 }
 
-/// One weights tensor. Byte 0 chooses the dtype (even: f16, odd: f32) and the rank (1..=4),
-/// the next 4 bytes per dimension the shape (little-endian u32, as a hostile file could
-/// claim); the rest is the tensor data.
+/// One quantised PNG texture level (revision 1.1). The first 4 bytes choose the declared
+/// width, height (1..=256), channel count (1..=32) and bits (even: 8, odd: 4); every channel
+/// has scale 1/64 and offset -1; the rest is the PNG file.
+pub fn png_level(data: &[u8]) {
+    let [w, h, c, b, rest @ ..] = data else {
+        return;
+    };
+    let channels = u32::from(*c % 32) + 1;
+    let expect = LevelExpect {
+        width: u32::from(*w) + 1,
+        height: u32::from(*h) + 1,
+        channels,
+    };
+    let q = dnr_format::model::Quantization {
+        bits: if b % 2 == 0 { 8 } else { 4 },
+        scale: vec![1.0 / 64.0; channels as usize],
+        offset: vec![-1.0; channels as usize],
+        ..Default::default()
+    };
+    let _ = dnr_format::quant::decode_png_level(rest, expect, &q, &fuzz_limits());
+}
+
+/// One weights tensor. Byte 0 chooses the dtype (`% 3`: f16, f32, int8) and the rank
+/// (1..=4), the next 4 bytes per dimension the shape (little-endian u32, as a hostile file
+/// could claim); the rest is the tensor data.
 pub fn weights(data: &[u8]) {
     let Some((&head, mut rest)) = data.split_first() else {
         return;
     };
-    let dtype = if head % 2 == 0 {
-        DType::F16
-    } else {
-        DType::F32
+    let dtype = match head % 3 {
+        0 => DType::F16,
+        1 => DType::F32,
+        _ => DType::Int8,
     };
-    let rank = usize::from(head / 2 % 4) + 1;
+    let rank = usize::from(head / 3 % 4) + 1;
     let mut shape = Vec::with_capacity(rank);
     for _ in 0..rank {
         let Some((dim, tail)) = rest.split_first_chunk::<4>() else {
@@ -83,9 +105,10 @@ pub fn transforms(data: &[u8]) {
 pub type Target = fn(&[u8]);
 
 /// The targets by name, as `fuzz/fuzz_targets/<name>.rs` and `fuzz/corpus/<name>/` call them.
-pub const TARGETS: [(&str, Target); 4] = [
+pub const TARGETS: [(&str, Target); 5] = [
     ("asset_reader", asset_reader),
     ("exr_level", exr_level),
+    ("png_level", png_level),
     ("weights", weights),
     ("transforms", transforms),
 ];
@@ -142,19 +165,50 @@ pub fn seeds(name: &str) -> Vec<Vec<u8>> {
                 (DType::F16, vec![4u32, 3]),
                 (DType::F32, vec![2, 3, 4, 4]),
                 (DType::F16, vec![7]),
+                (DType::Int8, vec![3, 5]),
+                (DType::Int8, vec![2, 3, 4, 4]),
             ] {
                 let n: u32 = shape.iter().product();
                 let data: Vec<f32> = (0..n).map(|k| k as f32 * 0.25 - 1.0).collect();
-                let Ok(bytes) = encode_tensor("t", &data, &dtype) else {
+                let encoded = match dtype {
+                    DType::Int8 => dnr_format::weights::encode_int8("t", &shape, &data),
+                    _ => encode_tensor("t", &data, &dtype),
+                };
+                let Ok(bytes) = encoded else {
                     continue;
                 };
-                let code = u8::from(dtype == DType::F32) + 2 * (shape.len() as u8 - 1);
+                let kind = match dtype {
+                    DType::F16 => 0,
+                    DType::F32 => 1,
+                    _ => 2,
+                };
+                let code = kind + 3 * (shape.len() as u8 - 1);
                 let mut input = vec![code];
                 shape
                     .iter()
                     .for_each(|d| input.extend_from_slice(&d.to_le_bytes()));
                 input.extend(bytes);
                 out.push(input);
+            }
+            out
+        }
+        "png_level" => {
+            let mut out = Vec::new();
+            for (i, bits) in [8u32, 4, 8, 4].into_iter().enumerate() {
+                let (w, h, c) = (3 + i as u32, 2 + i as u32, [3, 6, 9, 16][i]);
+                let data = (0..w * h * c).map(|k| ((k * 37 % 101) as f32 - 50.0) / 64.0);
+                let level = TextureLevel {
+                    width: w,
+                    height: h,
+                    channels: c,
+                    data: data.collect(),
+                };
+                if let Ok((_, png)) = dnr_format::quant::encode_png_level(&level, bits) {
+                    let b = u8::from(bits == 4);
+                    let mut input = vec![(w - 1) as u8, (h - 1) as u8, (c - 1) as u8, b];
+                    input.extend(png);
+                    out.push(input);
+                }
             }
             out
         }

@@ -1,14 +1,16 @@
 //! Export: the trained texture and renderer, the proxy mesh and the fallback material as one
-//! `EXT_deferred_neural_rendering` asset (f16 storage with the format crate's range checks,
-//! written to a temporary file and renamed).
+//! `EXT_deferred_neural_rendering` asset (f16 storage with the format crate's range checks, or
+//! quantised levels and `int8` weights, see [`Storage`]; written to a temporary file and
+//! renamed).
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use dnr_format::asset::{
-    AssetBuilder, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, WrapMode,
+    AssetBuilder, LevelStorage, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc,
+    WrapMode,
 };
-use dnr_format::model::{Architecture, Decoder, Normalization, Renderer, ViewDependence};
+use dnr_format::model::{Architecture, DType, Decoder, Normalization, Renderer, ViewDependence};
 use dnr_format::{LevelCompression, TensorF32, TextureLevel};
 use dnr_runtime::network::unet::{self, UNetParams};
 use dnr_runtime::scene::Scene;
@@ -35,6 +37,51 @@ pub enum ExportNet {
         /// `name -> (shape, values)`.
         tensors: BTreeMap<String, (Vec<usize>, Vec<f32>)>,
     },
+}
+
+/// How the asset stores its parts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Storage {
+    /// Per level, finest first (levels past the end: EXR f16).
+    pub levels: Vec<LevelStorage>,
+    /// The renderer's tensors (`int8`: rank-2-and-up tensors int8, biases f16).
+    pub weights: DType,
+}
+
+impl Storage {
+    /// Every level EXR f16, weights `dtype`: revision 1.0 storage.
+    pub fn exr(dtype: DType) -> Self {
+        Storage {
+            levels: Vec::new(),
+            weights: dtype,
+        }
+    }
+
+    /// `levels` levels all stored as `level`, weights `int8` when `level` is quantised.
+    pub fn uniform(level: LevelStorage, levels: usize) -> Self {
+        Storage {
+            levels: vec![level; levels],
+            weights: if level == LevelStorage::Exr {
+                DType::F16
+            } else {
+                DType::Int8
+            },
+        }
+    }
+
+    /// Short text: `f16`, `q8`, `q4` when uniform, else the levels and weights.
+    pub fn describe(&self) -> String {
+        let names: Vec<&str> = self.levels.iter().map(|l| l.name()).collect();
+        format!(
+            "levels [{}], weights {}",
+            if names.is_empty() {
+                "f16".to_string()
+            } else {
+                names.join(", ")
+            },
+            self.weights
+        )
+    }
 }
 
 /// Export errors.
@@ -95,8 +142,21 @@ pub fn build(
     sh: Option<(u32, u32)>,
     net: &ExportNet,
     out_ch: usize,
-    dtype: dnr_format::model::DType,
+    dtype: DType,
 ) -> Result<AssetBuilder, ExportError> {
+    build_with(scene, pyr, sh, net, out_ch, &Storage::exr(dtype))
+}
+
+/// [`build`] with any [`Storage`].
+pub fn build_with(
+    scene: &Scene,
+    pyr: &Pyramid,
+    sh: Option<(u32, u32)>,
+    net: &ExportNet,
+    out_ch: usize,
+    storage: &Storage,
+) -> Result<AssetBuilder, ExportError> {
+    let dtype = storage.weights.clone();
     let mut b = AssetBuilder::new();
     b.generator = Some(format!("dnr-bake {}", env!("CARGO_PKG_VERSION")));
     let channels = u32_of(pyr.channels)?;
@@ -119,6 +179,7 @@ pub fn build(
         view_dependence: sh.map(|(d, f)| ViewDependence::spherical_harmonics(d, f)),
         // Per level, the smallest of the lossless methods (zeros of unseen texels compress).
         compression: LevelCompression::Smallest,
+        storage: storage.levels.clone(),
     });
     let out = u32_of(out_ch)?;
     let (renderer, tensors) = match net {

@@ -46,10 +46,17 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     };
 
     let progress = Progress::new(opts.progress, cfg);
+    // Quantised storage: the last part of training runs through the rounding it will get.
+    let qat = opts.storage.qat_target(trainer.pyr.levels.len());
+    let until = if qat.is_some() {
+        train::quantise::QAT_START
+    } else {
+        1.0
+    };
     train::run(
         &mut trainer,
         &mut state,
-        1.0,
+        until,
         loaded.fit(),
         loaded.val(),
         &loaded.test,
@@ -57,6 +64,20 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         |t, secs| progress.on_step(t, secs),
         |r| progress.on_record(r),
     )?;
+    if qat.is_some() {
+        trainer.set_qat(qat.clone());
+        train::run(
+            &mut trainer,
+            &mut state,
+            1.0,
+            loaded.fit(),
+            loaded.val(),
+            &loaded.test,
+            Some(&ckpt),
+            |t, secs| progress.on_step(t, secs),
+            |r| progress.on_record(r),
+        )?;
+    }
     progress.finish();
     let net = trainer.export_net();
     let parts = ExportParts::of(&trainer, &net);
@@ -65,6 +86,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         steps: trainer.step,
         state,
         auto: None,
+        qat,
     };
     pipeline::finish(&loaded, &parts, outcome, opts, t_start)
 }

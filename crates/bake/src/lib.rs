@@ -18,4 +18,5 @@ pub mod export;
 pub mod fixed;
 pub mod kernels;
 pub mod pipeline;
+pub mod storage;
 pub mod train;

@@ -159,6 +159,21 @@ struct Args {
     /// With --preset auto: also write the state just before pruning.
     #[arg(long, value_name = "PATH")]
     write_unpruned: Option<PathBuf>,
+    /// How the asset stores texture levels and weights: f16 (EXR levels, f16 weights; readable
+    /// by every reader of the format), q8 or q4 (8- or 4-bit quantised PNG levels, int8
+    /// weights; format revision 1.1), or auto (per level and for the weights, the smallest
+    /// encoding whose validation PSNR cost stays under --storage-bound-db). Quantised storage
+    /// trains the last 15 % of the run through its rounding. The --report lists each choice
+    /// with its bytes and cost.
+    #[arg(long, value_name = "STORAGE", default_value = "f16")]
+    storage: dnr_bake::storage::StorageMode,
+    /// Validation PSNR (dB) that --storage auto lets the smaller encodings cost.
+    #[arg(long, value_name = "DB", default_value_t = dnr_bake::storage::DEFAULT_BOUND_DB)]
+    storage_bound_db: f64,
+    /// Also write the same trained state with f16 storage (to compare a quantised asset with
+    /// it).
+    #[arg(long, value_name = "PATH")]
+    write_f16: Option<PathBuf>,
     /// Print the final figures as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -269,6 +284,12 @@ fn run(a: Args) -> Result<()> {
     } else if a.write_unpruned.is_some() {
         anyhow::bail!("--write-unpruned needs --preset auto");
     }
+    if !(a.storage_bound_db.is_finite() && a.storage_bound_db >= 0.0) {
+        anyhow::bail!(
+            "--storage-bound-db must be a finite number of dB at least 0, not {}",
+            a.storage_bound_db
+        );
+    }
     let cfg = config(&a);
     cfg.schedule
         .validate()
@@ -290,6 +311,9 @@ fn run(a: Args) -> Result<()> {
         checkpoint_every: a.checkpoint_every,
         write_f32: a.write_f32.clone(),
         write_unpruned: a.write_unpruned.clone(),
+        storage: a.storage,
+        storage_bound_db: a.storage_bound_db,
+        write_f16: a.write_f16.clone(),
         input: dnr_bake::capture::InputOptions {
             max_side: a.max_side,
             uv: a.uv,

@@ -103,6 +103,9 @@ fn bake_opts(capture: &Path, out: &Path) -> BakeOptions {
         limits: Default::default(),
         write_f32: None,
         write_unpruned: None,
+        storage: dnr_bake::storage::StorageMode::F16,
+        storage_bound_db: dnr_bake::storage::DEFAULT_BOUND_DB,
+        write_f16: None,
         input: Default::default(),
     }
 }

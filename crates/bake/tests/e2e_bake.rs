@@ -390,3 +390,73 @@ fn held_out_error_never_grows_with_the_default_presets_time_budget() {
         .collect();
     assert_non_decreasing("the default preset by seconds", &psnr);
 }
+
+#[test]
+fn auto_preset_with_auto_storage_fine_tunes_through_the_rounding_and_keeps_the_bound() {
+    let _turn = timed();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("auto-q.glb");
+    let report = dir.path().join("auto-q.json");
+    let o = Command::new(bin())
+        .arg(capture_common::sample_capture())
+        .arg("-o")
+        .arg(&out)
+        .args([
+            "--preset",
+            "auto",
+            "--time-budget",
+            "15",
+            "--threads",
+            "2",
+            "--storage",
+            "auto",
+        ])
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .expect("run dnr-bake");
+    assert!(
+        o.status.success(),
+        "dnr-bake --storage auto failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&report).unwrap()).expect("report JSON");
+    let v = dnr_format::validate_file(&out, &dnr_format::Limits::default()).unwrap();
+    assert!(v.issues.is_empty(), "{:#?}", v.issues);
+    let s = &r["storage"];
+    assert_eq!(s["mode"], "auto");
+    // The network behind the highlights stays, so the last part of training ran through the
+    // rounding auto may choose at its smallest (q4 levels, int8 weights).
+    assert_eq!(
+        r["auto"]["textureOnly"].as_bool(),
+        Some(false),
+        "{}",
+        r["auto"]
+    );
+    assert_eq!(s["qat"]["int8Weights"], true, "{s}");
+    let variant = |name: &str| {
+        s["variants"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|v| v["name"] == name)
+            .unwrap_or_else(|| panic!("no variant {name}: {s}"))
+            .clone()
+    };
+    let (chosen, f16) = (variant("chosen"), variant("f16"));
+    let bound = s["boundDb"].as_f64().unwrap();
+    let (cv, fv) = (
+        chosen["valPsnr"].as_f64().unwrap(),
+        f16["valPsnr"].as_f64().unwrap(),
+    );
+    assert!(cv >= fv - bound - 1e-9, "chosen {cv} dB, f16 {fv} dB");
+    assert!(chosen["bytes"]["total"].as_u64() <= f16["bytes"]["total"].as_u64());
+    assert_eq!(
+        chosen["bytes"]["total"].as_u64(),
+        Some(std::fs::metadata(&out).unwrap().len())
+    );
+    let test = r["summary"]["testPsnr"].as_f64().unwrap();
+    assert!((chosen["testPsnr"].as_f64().unwrap() - test).abs() < 1e-9);
+    assert!(test > 20.0, "{}", r["summary"]);
+}

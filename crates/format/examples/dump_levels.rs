@@ -2,8 +2,12 @@
 //! `cargo run -p dnr-format --example dump_levels -- FILE`.
 //!
 //! Output: `{"file": ..., "levels": [{"texture", "level", "bufferView", "width", "height",
-//! "channels", "channelNames", "halfBits": [HWC u16 bit patterns]}]}`. Used by
-//! `tests/scripts/check_exr.py` to compare against the reference OpenEXR library.
+//! "channels", "channelNames", "halfBits": [HWC u16 bit patterns]}], "pngLevels":
+//! [{"texture", "level", "bufferView", "width", "height", "channels", "bits", "f32Bits":
+//! [HWC u32 bit patterns]}]}`: the EXR levels in `levels`, the quantised PNG levels of
+//! revision 1.1 in `pngLevels`. Used by `tests/scripts/check_exr.py` to compare against the
+//! reference OpenEXR library and by `tests/scripts/check_png_levels.py` against a PNG decoder
+//! written from the PNG and extension specifications.
 
 use std::path::Path;
 
@@ -18,6 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let value = dnr_format::asset::root_extension_value(&c.root).ok_or("no extension object")?;
     let ext: dnr_format::model::Extension = serde_json::from_value(value.clone())?;
     let mut levels = Vec::new();
+    let mut png_levels = Vec::new();
     for (ti, t) in ext.neural_textures.iter().enumerate() {
         for (li, l) in t.levels.iter().enumerate() {
             let bytes = c.view_bytes(l.buffer_view)?;
@@ -26,6 +31,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 height: l.height,
                 channels: t.channels,
             };
+            if let Some(q) = &l.quantization {
+                let level = dnr_format::quant::decode_png_level(bytes, expect, q, &limits)
+                    .map_err(|p| p.error)?;
+                png_levels.push(json!({
+                    "texture": ti,
+                    "level": li,
+                    "bufferView": l.buffer_view,
+                    "width": l.width,
+                    "height": l.height,
+                    "channels": t.channels,
+                    "bits": q.bits,
+                    "f32Bits": level.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                }));
+                continue;
+            }
             let halves = decode_level_halves(bytes, expect, &limits).map_err(|p| p.error)?;
             levels.push(json!({
                 "texture": ti,
@@ -39,6 +59,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }));
         }
     }
-    println!("{}", json!({ "file": file, "levels": levels }));
+    println!(
+        "{}",
+        json!({ "file": file, "levels": levels, "pngLevels": png_levels })
+    );
     Ok(())
 }

@@ -14,9 +14,9 @@ use dnr_format::container::{glb_bytes, parse_glb};
 use dnr_format::exr_codec::{channel_name, encode_level};
 use dnr_format::model::{DType, Decoder, Normalization, Renderer, ViewDependence};
 use dnr_format::{
-    architecture_tensors, AssetBuilder, Container, LevelCompression, Limits, MaterialDesc,
-    NeuralTextureDesc, Node, Primitive, RendererDesc, TensorF32, TextureLevel, WrapMode,
-    EXTENSION_NAME,
+    architecture_tensors, AssetBuilder, Container, LevelCompression, LevelStorage, Limits,
+    MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, TensorF32, TextureLevel,
+    WrapMode, EXTENSION_NAME,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -100,6 +100,9 @@ pub fn reference_cameras() -> Vec<(&'static str, Vec<RefCamera>)> {
         "valid/unet_transposed_instance_f16.glb",
         "valid/unet_upsample_none_f32.glb",
         "valid/unet_depth1_external.gltf",
+        "valid/mlp_q8_levels.glb",
+        "valid/mlp_q4_levels.glb",
+        "valid/unet_int8_weights.glb",
     ]
     .into_iter()
     .map(|s| (s, quad()))
@@ -229,6 +232,8 @@ struct One {
     wrap: (WrapMode, WrapMode),
     sh: Option<ViewDependence>,
     compression: LevelCompression,
+    /// Per level storage (revision 1.1 quantised PNG); empty for EXR.
+    storage: Vec<LevelStorage>,
     renderer: Renderer,
     dtype: DType,
 }
@@ -244,6 +249,7 @@ fn single(seed: u64, o: One) -> Res<Container> {
         wrap_t: o.wrap.1,
         view_dependence: o.sh,
         compression: o.compression,
+        storage: o.storage,
     });
     let tensors = tensors(&mut rng, &o.renderer)?;
     let r = b.add_renderer(RendererDesc {
@@ -273,6 +279,7 @@ fn one(channels: u32, renderer: Renderer) -> One {
         wrap: (WrapMode::Repeat, WrapMode::Repeat),
         sh: None,
         compression: LevelCompression::Zip,
+        storage: Vec::new(),
         renderer,
         dtype: DType::F16,
     }
@@ -296,6 +303,7 @@ fn scene(seed: u64) -> Res<Container> {
         wrap_t: WrapMode::MirroredRepeat,
         view_dependence: None,
         compression: LevelCompression::Rle,
+        storage: Vec::new(),
     });
     let t1 = b.add_neural_texture(NeuralTextureDesc {
         levels: levels(&mut rng, 9, 7, 19, 2),
@@ -303,6 +311,7 @@ fn scene(seed: u64) -> Res<Container> {
         wrap_t: WrapMode::Repeat,
         view_dependence: Some(ViewDependence::spherical_harmonics(3, 3)),
         compression: LevelCompression::Piz,
+        storage: Vec::new(),
     });
     let r0 = Renderer::new(dnr_format::model::Architecture::None, 4, 3);
     let r0 = b.add_renderer(RendererDesc {
@@ -444,6 +453,165 @@ fn raw_exr(
     let mut out = std::io::Cursor::new(Vec::new());
     image.write().non_parallel().to_buffered(&mut out)?;
     Ok(out.into_inner())
+}
+
+/// A PNG of `w x h` pixels of `color` at `depth`, every sample 0.
+fn raw_png(w: u32, h: u32, color: png::ColorType, depth: png::BitDepth) -> Res<Vec<u8>> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, w, h);
+    enc.set_color(color);
+    enc.set_depth(depth);
+    let samples = color.samples()
+        * if depth == png::BitDepth::Sixteen {
+            2
+        } else {
+            1
+        };
+    let mut wr = enc.write_header()?;
+    wr.write_image_data(&vec![0u8; w as usize * h as usize * samples])?;
+    wr.finish()?;
+    Ok(out)
+}
+
+/// Invalid samples of revision 1.1's quantised storage, derived from the valid `q8` (level 0
+/// is 13x10, 6 channels: a 13x20 PNG) and `int8` samples.
+fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
+    let level = |v: &mut Value| -> Value { ext(v)["neuralTextures"][0]["levels"][0].clone() };
+    let set_q = |v: &mut Value, key: &str, value: Value| {
+        ext(v)["neuralTextures"][0]["levels"][0]["quantization"][key] = value;
+    };
+    let out = edit(q8, |v, _| {
+        set_q(v, "scale", json!([0.0, 0.01, 0.01, 0.01, 0.01, 0.01]))
+    })?;
+    w.put(
+        "invalid/quant_scale_zero.glb",
+        &out,
+        "revision 1.1: a quantised level's scale of channel 0 is 0",
+        &["QUANT_SCALE_INVALID"],
+    )?;
+    // JSON has no NaN; a number beyond the f32 range reads as infinite.
+    let out = edit(q8, |v, _| {
+        set_q(v, "scale", json!([0.01, 1e39, 0.01, 0.01, 0.01, 0.01]))
+    })?;
+    w.put(
+        "invalid/quant_scale_infinite.glb",
+        &out,
+        "revision 1.1: a quantised level's scale is 1e39, infinite in f32 (JSON cannot hold NaN)",
+        &["QUANT_SCALE_INVALID"],
+    )?;
+    let out = edit(q8, |v, _| {
+        set_q(v, "offset", json!([0.0, 0.0, 0.0, 0.0, 0.0]))
+    })?;
+    w.put(
+        "invalid/quant_offset_length.glb",
+        &out,
+        "revision 1.1: a quantised level's offset has 5 entries for 6 channels",
+        &["QUANT_ARRAY_LENGTH"],
+    )?;
+    let out = edit(q8, |v, _| set_q(v, "bits", json!(16)))?;
+    w.put(
+        "invalid/quant_bits_16.glb",
+        &out,
+        "revision 1.1: a quantised level declares 16 bits",
+        &["QUANT_BITS"],
+    )?;
+    let out = edit(q8, |v, _| {
+        if let Some(o) = ext(v)["neuralTextures"][0]["levels"][0].as_object_mut() {
+            o.remove("quantization");
+        }
+    })?;
+    w.put(
+        "invalid/png_level_without_quantization.glb",
+        &out,
+        "revision 1.1: an image/png level without its quantization object",
+        &["JSON_SCHEMA"],
+    )?;
+    let pngs: [(&str, Vec<u8>, &str, &'static str); 5] = [
+        (
+            "png_rgb",
+            raw_png(13, 20, png::ColorType::Rgb, png::BitDepth::Eight)?,
+            "the level's PNG is RGB (3 channels), not RGBA",
+            "PNG_FORMAT",
+        ),
+        (
+            "png_16bit",
+            raw_png(13, 20, png::ColorType::Rgba, png::BitDepth::Sixteen)?,
+            "the level's PNG is RGBA at 16 bits per sample",
+            "PNG_FORMAT",
+        ),
+        (
+            "png_size_mismatch",
+            raw_png(13, 10, png::ColorType::Rgba, png::BitDepth::Eight)?,
+            "the level's PNG is 13x10, 6 channels at 8 bits need 13x20",
+            "PNG_SIZE_MISMATCH",
+        ),
+        (
+            "png_truncated",
+            {
+                let good = raw_png(13, 20, png::ColorType::Rgba, png::BitDepth::Eight)?;
+                good[..good.len() - 20].to_vec()
+            },
+            "the level's PNG is cut before its last chunks",
+            "PNG_INVALID",
+        ),
+        (
+            "png_not_png",
+            b"\x89PNX not a PNG file at all".to_vec(),
+            "the level's bytes do not start with the PNG signature",
+            "PNG_INVALID",
+        ),
+    ];
+    for (name, bytes, what, code) in pngs {
+        let out = edit(q8, |v, bin| {
+            let view = as_usize(&level(v)["bufferView"]);
+            replace_view(v, bin, view, &bytes);
+        })?;
+        w.put(
+            &format!("invalid/{name}.glb"),
+            &out,
+            &format!("revision 1.1: {what}"),
+            &[code],
+        )?;
+    }
+    // int8: replace the first row scale of the first int8 tensor, with a matching CRC so only
+    // the scale is wrong: 0, and f32::MAX (finite, but scale * q overflows).
+    let set_row0_scale = |scale: f32| {
+        edit(int8, move |v, bin| {
+            let d = ext(v)["renderers"][0]["weights"][0].clone();
+            let view = &v["bufferViews"][as_usize(&d["bufferView"])];
+            let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
+            let n: usize = d["shape"]
+                .as_array()
+                .map_or(0, |s| s.iter().map(as_usize).product());
+            let rows = d["shape"][0].as_u64().unwrap_or(1) as usize;
+            let at = start + n.next_multiple_of(4);
+            bin[at..at + 4].copy_from_slice(&scale.to_le_bytes());
+            let crc = crc32fast::hash(&bin[start..at + 4 * rows]);
+            ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
+        })
+    };
+    w.put(
+        "invalid/int8_scale_zero.glb",
+        &set_row0_scale(0.0)?,
+        "revision 1.1: an int8 tensor's first row scale is 0 (its CRC-32 matches)",
+        &["WEIGHTS_SCALE_INVALID"],
+    )?;
+    w.put(
+        "invalid/int8_scale_overflow.glb",
+        &set_row0_scale(f32::MAX)?,
+        "revision 1.1: an int8 tensor's first row scale is f32::MAX, so scale * q overflows (its CRC-32 matches)",
+        &["WEIGHTS_NON_FINITE"],
+    )?;
+    let out = edit(int8, |v, _| {
+        ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("int4")
+    })?;
+    w.put(
+        "invalid/weights_dtype_int4.glb",
+        &out,
+        "a tensor's dtype is int4, which no revision defines",
+        &["WEIGHTS_DTYPE_UNKNOWN"],
+    )?;
+    Ok(())
 }
 
 // ---------------------------------------------------------------------------------------
@@ -614,6 +782,52 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         description: "unet of depth 1 (no skip connections), .gltf with external unet_depth1_external.bin, 4 levels from 20x20".into(),
         expected: vec![],
     });
+
+    // ---- revision 1.1: quantised storage
+    let q8 = single(
+        11,
+        One {
+            levels: 2,
+            size: (13, 10),
+            compression: LC::Zip,
+            storage: vec![LevelStorage::Q8, LevelStorage::Q8],
+            ..one(6, Renderer::mlp(6, 3, vec![8]))
+        },
+    )?;
+    w.put("valid/mlp_q8_levels.glb", &glb(&q8)?, "revision 1.1: 2 levels from 13x10 as 8-bit quantised PNG (6 channels: 2 groups, the second half empty), mlp hidden [8], f16 weights", &[])?;
+
+    let q4 = single(
+        12,
+        One {
+            levels: 3,
+            size: (15, 9),
+            sh: Some(ViewDependence::spherical_harmonics(1, 3)),
+            compression: LC::Zip,
+            storage: vec![LevelStorage::Q4, LevelStorage::Q4],
+            ..one(11, Renderer::mlp(11, 3, vec![8]))
+        },
+    )?;
+    w.put("valid/mlp_q4_levels.glb", &glb(&q4)?, "revision 1.1: 3 levels from 15x9, the first two 4-bit quantised PNG (11 channels: 2 groups of 8, two per byte), the third EXR ZIP, SH degree 1, mlp hidden [8]", &[])?;
+
+    let int8 = single(
+        13,
+        One {
+            size: (20, 18),
+            compression: LC::Zip,
+            dtype: DType::Int8,
+            ..one(
+                8,
+                Renderer::unet(
+                    8,
+                    4,
+                    vec![4, 8],
+                    Decoder::TransposedConv,
+                    Normalization::Instance,
+                ),
+            )
+        },
+    )?;
+    w.put("valid/unet_int8_weights.glb", &glb(&int8)?, "revision 1.1: unet widths [4, 8], transposedConv, instance norm, int8 weights with per-row f32 scales (biases f16), 2 EXR levels from 20x18", &[])?;
 
     let sc = scene(9)?;
     w.put("valid/scene_multi_primitive.glb", &glb(&sc)?, "3 nodes (child with rotation + non-uniform scale), a 2-primitive mesh instanced twice, a pyramid without normals, primitives bound to 2 textures/renderers (none; mlp with SH degree 3, 19 channels, f32), CLAMP_TO_EDGE/MIRRORED_REPEAT, EXR RLE and PIZ", &[])?;
@@ -791,12 +1005,13 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     )?;
 
     let out = edit(&base, |v, _| {
-        ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/png")
+        // Revision 1.1 defines image/png (with quantization); webp is in no revision.
+        ext(v)["neuralTextures"][0]["levels"][0]["mimeType"] = json!("image/webp")
     })?;
     w.put(
         "invalid/texture_mime_type.glb",
         &out,
-        "level mimeType image/png",
+        "level mimeType image/webp (no revision defines it)",
         &["TEXTURE_MIME_TYPE"],
     )?;
 
@@ -1089,6 +1304,7 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         wrap_t: WM::Repeat,
         view_dependence: None,
         compression: LC::Zip,
+        storage: Vec::new(),
     });
     let r = b.add_renderer(RendererDesc {
         renderer: Renderer::new(A::None, 3, 3),
@@ -1122,6 +1338,8 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         ".gltf whose buffer is an external file that does not exist",
         &["BUFFER_INVALID"],
     )?;
+
+    quantised_invalid(&mut w, &glb(&q8)?, &glb(&int8)?)?;
 
     write_index(dir, &w.samples)?;
     Ok(w.samples)

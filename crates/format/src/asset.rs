@@ -371,10 +371,16 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
         }
         let mut levels = Vec::with_capacity(t.levels.len());
         for (li, l) in t.levels.iter().enumerate() {
-            if l.mime_type != model::LEVEL_MIME_TYPE {
+            let png = l.mime_type == model::LEVEL_MIME_TYPE_PNG;
+            if l.mime_type != model::LEVEL_MIME_TYPE && !png {
                 return Err(Error::not_supported(format!(
                     "texture {ti} level {li} mimeType `{}`",
                     l.mime_type
+                )));
+            }
+            if png != l.quantization.is_some() {
+                return Err(Error::invalid(format!(
+                    "texture {ti} level {li}: quantization must be present exactly on image/png levels"
                 )));
             }
             texel_values = texel_values
@@ -386,7 +392,11 @@ pub fn decode_asset(container: Container, limits: &Limits) -> Result<Asset> {
                 height: l.height,
                 channels: t.channels,
             };
-            let level = decode_level(bytes, expect, limits).map_err(|p| match p.error {
+            let decoded = match &l.quantization {
+                Some(q) => crate::quant::decode_png_level(bytes, expect, q, limits),
+                None => decode_level(bytes, expect, limits),
+            };
+            let level = decoded.map_err(|p| match p.error {
                 Error::Invalid { what } => {
                     Error::invalid(format!("texture {ti} level {li}: {what}"))
                 }
@@ -611,8 +621,43 @@ pub struct NeuralTextureDesc {
     pub wrap_t: WrapMode,
     /// Optional view dependence.
     pub view_dependence: Option<ViewDependence>,
-    /// EXR compression of every level.
+    /// EXR compression of every level stored as EXR.
     pub compression: LevelCompression,
+    /// Storage of each level, finest first; levels past the end of the list (all of them
+    /// when it is empty) are EXR.
+    pub storage: Vec<LevelStorage>,
+}
+
+/// How one level is stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum LevelStorage {
+    /// OpenEXR `HALF` channels (revision 1.0).
+    #[default]
+    Exr,
+    /// 8-bit quantised PNG (revision 1.1).
+    Q8,
+    /// 4-bit quantised PNG (revision 1.1).
+    Q4,
+}
+
+impl LevelStorage {
+    /// The quantisation depth, `None` for EXR.
+    pub fn bits(self) -> Option<u32> {
+        match self {
+            LevelStorage::Exr => None,
+            LevelStorage::Q8 => Some(8),
+            LevelStorage::Q4 => Some(4),
+        }
+    }
+
+    /// The name the baker's `--storage` and reports use: `f16`, `q8`, `q4`.
+    pub fn name(self) -> &'static str {
+        match self {
+            LevelStorage::Exr => "f16",
+            LevelStorage::Q8 => "q8",
+            LevelStorage::Q4 => "q4",
+        }
+    }
 }
 
 /// A renderer to store.
@@ -868,13 +913,26 @@ impl AssetBuilder {
                         l.channels
                     )));
                 }
-                let exr = encode_level(l, li, t.compression)
-                    .map_err(|e| Error::invalid(format!("texture {ti}: {e}")))?;
+                let storage = t.storage.get(li).copied().unwrap_or_default();
+                let (bytes, mime, quantization) = match storage.bits() {
+                    None => (
+                        encode_level(l, li, t.compression)
+                            .map_err(|e| Error::invalid(format!("texture {ti}: {e}")))?,
+                        model::LEVEL_MIME_TYPE,
+                        None,
+                    ),
+                    Some(bits) => {
+                        let (q, png) = crate::quant::encode_png_level(l, bits)
+                            .map_err(|e| Error::invalid(format!("texture {ti} level {li}: {e}")))?;
+                        (png, model::LEVEL_MIME_TYPE_PNG, Some(q))
+                    }
+                };
                 levels.push(model::Level {
                     width: l.width,
                     height: l.height,
-                    buffer_view: bin.push(&exr, None)?,
-                    mime_type: model::LEVEL_MIME_TYPE.to_string(),
+                    buffer_view: bin.push(&bytes, None)?,
+                    mime_type: mime.to_string(),
+                    quantization,
                     extensions: None,
                     extras: None,
                     others: Default::default(),

@@ -47,15 +47,17 @@
 //! - high: [`read_asset`], [`read_asset_from_slice`], [`write_asset`], [`AssetBuilder`],
 //!   [`validate::validate_file`];
 //! - low, public too: [`model`] (serde structs of the JSON), [`container`] (GLB / glTF
-//!   IO), [`exr_codec`] (one level as EXR), [`weights`] (tensor codec),
+//!   IO), [`exr_codec`] (one level as EXR), [`quant`] (one quantised level as PNG, revision
+//!   1.1), [`weights`] (tensor codec, `int8` included),
 //!   [`architecture`] (tensors each architecture requires), [`limits`].
 //!
 //! Contract: safe for untrusted input. Nothing here panics on any input, and every size
 //! read from a file is checked against [`Limits`] before it sizes an allocation.
 //!
 //! Conventions: texture levels are `f32` texel-interleaved (HWC), row 0 = top = v 0;
-//! weights are row-major; on disk levels are EXR `HALF` channels `C00`.., weights
-//! little-endian `f16`/`f32` with a CRC-32 (zlib) each.
+//! weights are row-major; on disk levels are EXR `HALF` channels `C00`.. (or, revision 1.1,
+//! 8- or 4-bit PNG with a per-channel scale and offset), weights little-endian `f16`/`f32`
+//! (or `int8` with per-row scales) with a CRC-32 (zlib) each.
 #![forbid(unsafe_code)]
 
 pub mod architecture;
@@ -65,6 +67,7 @@ pub mod error;
 pub mod exr_codec;
 pub mod limits;
 pub mod model;
+pub mod quant;
 pub mod validate;
 pub mod weights;
 
@@ -72,7 +75,8 @@ pub use architecture::{architecture_tensors, renderer_problems};
 pub use asset::{
     decode_asset, read_asset, read_asset_from_slice, read_asset_from_slice_with_limits,
     read_asset_with_limits, write_asset, Asset, AssetBuilder, DecodedRenderer, DecodedTexture,
-    FallbackProblem, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc, WrapMode,
+    FallbackProblem, LevelStorage, MaterialDesc, NeuralTextureDesc, Node, Primitive, RendererDesc,
+    WrapMode,
 };
 pub use container::Container;
 pub use error::{Error, Result};

@@ -13,8 +13,11 @@ use serde_json::{Map, Value};
 /// The only extension version this crate reads and writes.
 pub const VERSION: u32 = 1;
 
-/// The MIME type of a neural texture level.
+/// The MIME type of a neural texture level stored as EXR.
 pub const LEVEL_MIME_TYPE: &str = "image/x-exr";
+
+/// The MIME type of a quantised level (revision 1.1), see [`crate::quant`].
+pub const LEVEL_MIME_TYPE_PNG: &str = "image/png";
 
 /// Root object: `extensions.EXT_deferred_neural_rendering` of the glTF root.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -101,8 +104,33 @@ pub struct Level {
     pub height: u32,
     /// Index of the bufferView holding the EXR file.
     pub buffer_view: u32,
-    /// Must be `image/x-exr`.
+    /// `image/x-exr`, or `image/png` for a quantised level (revision 1.1).
     pub mime_type: String,
+    /// Revision 1.1: the quantisation of an `image/png` level; absent for EXR levels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quantization: Option<Quantization>,
+    /// Extension-specific objects, kept verbatim.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extensions: Option<Map<String, Value>>,
+    /// Application-specific data, kept verbatim.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extras: Option<Value>,
+    /// Fields this version does not define, kept verbatim.
+    #[serde(flatten)]
+    pub others: Map<String, Value>,
+}
+
+/// Quantisation of a PNG level (revision 1.1): texel channel `c` is
+/// `offset[c] + scale[c] * q`, computed in `f32`, with `q` the stored `bits`-bit integer.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Quantization {
+    /// Bits per stored value: 8 (4 channels per RGBA texel) or 4 (8 channels, two per byte).
+    pub bits: u32,
+    /// Per channel step, finite and above 0.
+    pub scale: Vec<f32>,
+    /// Per channel value of `q = 0`, finite.
+    pub offset: Vec<f32>,
     /// Extension-specific objects, kept verbatim.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extensions: Option<Map<String, Value>>,
@@ -249,7 +277,7 @@ pub struct WeightTensor {
     pub name: String,
     /// Shape, row-major (C order).
     pub shape: Vec<u32>,
-    /// Element type: `f16` or `f32`, little-endian.
+    /// Element type: `f16` or `f32`, little-endian, or (revision 1.1) `int8`.
     pub dtype: DType,
     /// Index of the bufferView holding the tensor.
     pub buffer_view: u32,
@@ -277,11 +305,23 @@ impl WeightTensor {
             .try_fold(1u64, |acc, &d| acc.checked_mul(u64::from(d)))
     }
 
-    /// Byte length of the tensor data, `None` on overflow or unknown dtype.
+    /// Byte length of the tensor data, `None` on overflow or unknown dtype. For `int8` it
+    /// includes the padding and the per-row `f32` scales ([`int8_rows`]).
     pub fn byte_length(&self) -> Option<u64> {
-        self.element_count()?
-            .checked_mul(self.dtype.size_of()? as u64)
+        let n = self.element_count()?;
+        match self.dtype {
+            DType::Int8 => n
+                .next_multiple_of(4)
+                .checked_add(int8_rows(&self.shape).checked_mul(4)?),
+            _ => n.checked_mul(self.dtype.size_of()? as u64),
+        }
     }
+}
+
+/// Number of `f32` scales of an `int8` tensor: one per index of the first axis (the output
+/// channel of dense layers and convolutions), 1 for a scalar.
+pub fn int8_rows(shape: &[u32]) -> u64 {
+    shape.first().map_or(1, |&d| u64::from(d))
 }
 
 /// Declares a string-backed enum that keeps values it does not know.
@@ -378,6 +418,8 @@ string_enum! {
         F16 = "f16",
         /// IEEE 754 binary32, little-endian.
         F32 = "f32",
+        /// Revision 1.1: signed 8-bit integers, then one `f32` scale per first-axis index.
+        Int8 = "int8",
     }
 }
 
@@ -387,6 +429,7 @@ impl DType {
         match self {
             DType::F16 => Some(2),
             DType::F32 => Some(4),
+            DType::Int8 => Some(1),
             DType::Unknown(_) => None,
         }
     }

@@ -209,7 +209,9 @@ impl Loaded {
         Some(&self.asset.textures.get(t)?.levels.get(l)?.data)
     }
 
-    /// [`Loaded::level_f32`] as IEEE half bits (exact: levels are stored as half).
+    /// [`Loaded::level_f32`] as IEEE half bits: exact for EXR levels (stored as half); the
+    /// values of a quantised PNG level (`offset + scale * q` in `f32`) are rounded to the
+    /// nearest half.
     pub fn level_f16(&self, t: usize, l: usize) -> Option<Vec<u16>> {
         self.level_f32(t, l).map(|d| {
             d.iter()

@@ -91,8 +91,8 @@ impl DnrAsset {
             .ok_or_else(|| JsError::new(&format!("no level {level} of texture {texture}")))
     }
 
-    /// The same level as IEEE 754 half-precision bits (the values are stored as half, so
-    /// this is exact), for `HALF_FLOAT` textures.
+    /// The same level as IEEE 754 half-precision bits, for `HALF_FLOAT` textures: exact for
+    /// EXR levels (stored as half); quantised PNG levels are rounded to the nearest half.
     #[wasm_bindgen(js_name = levelF16)]
     pub fn level_f16(&self, texture: usize, level: usize) -> Result<Uint16Array, JsError> {
         self.inner

@@ -172,3 +172,37 @@ fn render_and_shade_equal_the_runtime() {
     assert!(l.render(1.0, 1.0, 0.0, 0.0, &[0.0; 15], 4, 4).is_err());
     assert!(Loaded::from_bytes(&read("invalid/weights_nan.glb")).is_err());
 }
+
+#[test]
+fn quantised_samples_decode_and_render_as_the_runtime() {
+    for rel in [
+        "valid/mlp_q8_levels.glb",
+        "valid/mlp_q4_levels.glb",
+        "valid/unet_int8_weights.glb",
+    ] {
+        let path = sample(rel);
+        let l = Loaded::from_bytes(&read(rel)).unwrap();
+        // Every level as the format decodes it (offset + scale * q for the PNG levels).
+        let asset = dnr_format::asset::read_asset(&path).unwrap();
+        for (ti, t) in asset.textures.iter().enumerate() {
+            for (li, level) in t.levels.iter().enumerate() {
+                assert_eq!(
+                    l.level_f32(ti, li).unwrap(),
+                    &level.data[..],
+                    "{rel} texture {ti} level {li}"
+                );
+            }
+        }
+        let r = Renderer::from_path(&path).unwrap();
+        let cam = camera(40, 30);
+        let m = cam.cam_to_world.to_cols_array();
+        let img = l
+            .render(cam.fx, cam.fy, cam.cx, cam.cy, &m, 40, 30)
+            .unwrap();
+        assert_eq!(img, r.render(&cam, 40, 30).unwrap().data, "{rel}");
+        assert!(
+            img.chunks_exact(4).filter(|p| p[3] > 0.0).count() > 50,
+            "{rel}"
+        );
+    }
+}

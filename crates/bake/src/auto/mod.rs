@@ -22,7 +22,9 @@
 //!    that are removed ([`prune`]); when it does not (yet), it trains on unpruned to the end
 //!    and the texture alone is written only if the network still buys less than that there.
 //! 6. [`train_phase`] to the end of the budget; the schedule anneals the learning rates to
-//!    its floor, and the best validated state is what gets written.
+//!    its floor, and the best validated state is what gets written. With quantised storage
+//!    (`--storage q8|q4|auto`) the last [`train::quantise::QAT_FRACTION`] of the budget trains
+//!    through the rounding the asset will store ([`train::quantise`]).
 
 pub mod footprint;
 pub mod prune;
@@ -255,12 +257,15 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         loaded.val_frame(),
     )?;
 
+    // Quantised storage: the last part of training runs through the rounding it will get.
+    let qat = opts.storage.qat_target(tr.pyr.levels.len());
     // A network that does not beat the classical texture yet may still be learning (few
     // steps on a slow or loaded machine): it trains on to the end, unpruned, and is compared
     // again there; only then may the texture alone win.
     let behind = trained_psnr - classical_psnr < PRUNE_DB;
     let end_psnr = if behind {
-        phases.train_after_pruning = train_phase(&mut tr, &mut state, 1.0, &loaded, &progress)?;
+        phases.train_after_pruning =
+            train_to_end(&mut tr, &mut state, qat.as_ref(), &loaded, &progress)?;
         train::run::mean_psnr(&tr, loaded.val())?
     } else {
         trained_psnr
@@ -304,7 +309,8 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         let pruning = prune::prune(&mut tr, loaded.val(), PRUNE_DB)?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
-        phases.train_after_pruning = train_phase(&mut tr, &mut state, 1.0, &loaded, &progress)?;
+        phases.train_after_pruning =
+            train_to_end(&mut tr, &mut state, qat.as_ref(), &loaded, &progress)?;
         let (p, n) = prune::strip_channels(&tr.pyr, &tr.export_net(), &pruning.channels);
         (p, n, tr.sh_layer(), tr.out_ch, Some(pruning))
     };
@@ -352,6 +358,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         steps: tr.step,
         state,
         auto: Some(&report),
+        qat: if texture_only { None } else { qat },
     };
     pipeline::finish(&loaded, &parts, outcome, opts, t_start)
 }
@@ -494,6 +501,24 @@ pub fn train_phase(
         |r| progress.on_record(r),
     )?;
     Ok(state.train_secs - before)
+}
+
+/// [`train_phase`] to the end of the budget; with quantised storage (`qat`), the part from
+/// [`train::quantise::QAT_START`] on reads the texture and the weights rounded as they will be
+/// stored. Returns the seconds trained.
+fn train_to_end(
+    tr: &mut Trainer,
+    state: &mut RunState,
+    qat: Option<&train::quantise::QatTarget>,
+    loaded: &Loaded,
+    progress: &Progress,
+) -> Result<f64, BakeError> {
+    let Some(q) = qat else {
+        return train_phase(tr, state, 1.0, loaded, progress);
+    };
+    let before = train_phase(tr, state, train::quantise::QAT_START, loaded, progress)?;
+    tr.set_qat(Some(q.clone()));
+    Ok(before + train_phase(tr, state, 1.0, loaded, progress)?)
 }
 
 /// The report line of the texture-resolution trials.

@@ -404,6 +404,7 @@ mod tests {
             wrap_t: WrapMode::ClampToEdge,
             view_dependence: None,
             compression: LevelCompression::None,
+            storage: Vec::new(),
         });
         b.add_renderer(RendererDesc {
             renderer: Spec::new(Architecture::None, 3, 3),

@@ -43,6 +43,14 @@ pub struct BakeOptions {
     pub write_f32: Option<PathBuf>,
     /// `--preset auto`: also write the state just before pruning here.
     pub write_unpruned: Option<PathBuf>,
+    /// `--storage`: how levels and weights are stored (quantised storage also fine-tunes
+    /// through its rounding over the last part of training).
+    pub storage: crate::storage::StorageMode,
+    /// `--storage-bound-db`: the validation PSNR `--storage auto` may spend.
+    pub storage_bound_db: f64,
+    /// Also write the same trained state with f16 storage here (to compare a quantised asset
+    /// with it).
+    pub write_f16: Option<PathBuf>,
     /// Capture loading choices (working size, UVs, mesh placement, alignment check).
     pub input: crate::capture::InputOptions,
 }
@@ -94,6 +102,8 @@ struct Report<'a, A: Serialize> {
     /// `--preset auto`: what was measured and decided.
     #[serde(skip_serializing_if = "Option::is_none")]
     auto: Option<&'a A>,
+    /// `--storage`: the encoding of each part, auto's trials, every storage measured.
+    storage: &'a crate::storage::StorageReport,
     summary: &'a Summary,
 }
 
@@ -262,16 +272,16 @@ impl<'a> ExportParts<'a> {
 pub fn write_asset(
     loaded: &Loaded,
     parts: &ExportParts,
-    dtype: dnr_format::model::DType,
+    storage: &export::Storage,
     path: &Path,
 ) -> Result<u64, BakeError> {
-    let builder = export::build(
+    let builder = export::build_with(
         &loaded.capture.mesh,
         parts.pyr,
         parts.sh,
         parts.net,
         parts.out_ch,
-        dtype,
+        storage,
     )?;
     Ok(export::write(&builder, path)?)
 }
@@ -313,7 +323,12 @@ pub fn measure_asset(
         }
     };
     let result = (|| {
-        let bytes = write_asset(loaded, parts, dnr_format::model::DType::F16, &tmp)?;
+        let bytes = write_asset(
+            loaded,
+            parts,
+            &export::Storage::exr(dnr_format::model::DType::F16),
+            &tmp,
+        )?;
         let Some(f) = frame else {
             return Ok((bytes, f64::NAN));
         };
@@ -343,6 +358,8 @@ pub struct Outcome<'a, A: Serialize> {
     pub state: RunState,
     /// Auto's decisions, if auto drove the bake.
     pub auto: Option<&'a A>,
+    /// What quantisation-aware fine-tuning imitated, if it ran.
+    pub qat: Option<crate::train::quantise::QatTarget>,
 }
 
 /// Writes the asset (and the f32 copy if asked), removes the checkpoint, evaluates the asset
@@ -354,9 +371,34 @@ pub fn finish<A: Serialize>(
     opts: &BakeOptions,
     t_start: Instant,
 ) -> Result<Summary, BakeError> {
-    let asset_bytes = write_asset(loaded, parts, dnr_format::model::DType::F16, &opts.output)?;
+    let (storage, storage_report) = crate::storage::choose(
+        loaded,
+        parts,
+        opts.storage,
+        opts.storage_bound_db,
+        outcome.qat.clone(),
+    )?;
+    if opts.progress {
+        for line in crate::storage::describe(&storage_report) {
+            eprintln!("dnr-bake: {line}");
+        }
+    }
+    let asset_bytes = write_asset(loaded, parts, &storage, &opts.output)?;
     if let Some(p) = &opts.write_f32 {
-        write_asset(loaded, parts, dnr_format::model::DType::F32, p)?;
+        write_asset(
+            loaded,
+            parts,
+            &export::Storage::exr(dnr_format::model::DType::F32),
+            p,
+        )?;
+    }
+    if let Some(p) = &opts.write_f16 {
+        write_asset(
+            loaded,
+            parts,
+            &export::Storage::exr(dnr_format::model::DType::F16),
+            p,
+        )?;
     }
     // The asset is complete: the checkpoint is no longer needed.
     let ckpt_path = checkpoint::path_for(&opts.output);
@@ -391,6 +433,7 @@ pub fn finish<A: Serialize>(
             recoveries: &state.recoveries,
             load: &loaded.load,
             auto: outcome.auto,
+            storage: &storage_report,
             summary: &summary,
         };
         let text = serde_json::to_string_pretty(&rep).expect("report serialises");

@@ -5,6 +5,7 @@
 pub mod checkpoint;
 pub mod config;
 pub mod init;
+pub mod quantise;
 pub mod run;
 pub mod schedule;
 pub mod views;
@@ -159,6 +160,8 @@ pub struct Trainer {
     lr_scale: f32,
     /// Seconds spent in each phase of [`Trainer::step`] since construction.
     pub phase_seconds: PhaseSeconds,
+    /// Quantisation-aware fine-tuning: the storage the forward pass imitates, when active.
+    qat: Option<quantise::QatTarget>,
 }
 
 /// Wall seconds of the phases of [`Trainer::step`], summed over steps (what `dnr bench train`
@@ -294,7 +297,51 @@ impl Trainer {
             zero_channels: Vec::new(),
             lr_scale: 1.0,
             phase_seconds: PhaseSeconds::default(),
+            qat: None,
         })
+    }
+
+    /// Starts (or, with `None`, stops) quantisation-aware fine-tuning: from now on steps and
+    /// evaluations read the texture and the weights rounded as `target` stores them, and
+    /// gradients update the full-precision values (straight-through).
+    pub fn set_qat(&mut self, target: Option<quantise::QatTarget>) {
+        self.qat = target.filter(|t| !t.is_identity());
+    }
+
+    /// The storage quantisation-aware fine-tuning imitates, if active.
+    pub fn qat(&self) -> Option<&quantise::QatTarget> {
+        self.qat.as_ref()
+    }
+
+    /// The texture as the forward pass reads it: rounded as stored during fine-tuning.
+    fn forward_pyramid(&self) -> Cow<'_, Pyramid> {
+        match &self.qat {
+            Some(q) if q.level_bits.iter().any(Option::is_some) => {
+                Cow::Owned(quantise::quantised_pyramid(&self.pyr, &q.level_bits))
+            }
+            _ => Cow::Borrowed(&self.pyr),
+        }
+    }
+
+    /// Whether the forward pass rounds the weights through `int8`.
+    fn qat_int8(&self) -> bool {
+        self.qat.as_ref().is_some_and(|q| q.int8_weights)
+    }
+
+    /// `name -> (shape, values)` of the network's tensors as the forward pass reads them.
+    fn forward_map(
+        &self,
+        map: std::collections::BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    ) -> std::collections::BTreeMap<String, (Vec<usize>, Vec<f32>)> {
+        if !self.qat_int8() {
+            return map;
+        }
+        map.into_iter()
+            .map(|(k, (shape, mut data))| {
+                quantise::fake_int8(&shape, &mut data);
+                (k, (shape, data))
+            })
+            .collect()
     }
 
     /// Removes pyramid level `k` (and its optimiser state): the renderer then sees the sum of
@@ -386,14 +433,13 @@ impl Trainer {
         )
     }
 
-    /// The feature image of a view: the sampled pyramid (C x H x W) after SH. SH never
-    /// touches channels 0..2 (`SH_FIRST >= 3`), so those are still the raw features the
-    /// mean-colour loss supervises.
-    fn features(&self, v: &View) -> Result<Tensor, TrainError> {
+    /// The feature image of a view from `pyr` (the trainer's, or its rounding during
+    /// fine-tuning): the sampled pyramid (C x H x W) after SH. SH never touches channels 0..2
+    /// (`SH_FIRST >= 3`), so those are still the raw features the mean-colour loss supervises.
+    fn features_of(&self, pyr: &Pyramid, v: &View) -> Result<Tensor, TrainError> {
         // sample_into writes every value.
-        let mut x = Tensor::scratch(self.pyr.channels, v.height(), v.width());
-        sample_into(&self.pyr, &v.gbuf, &mut x.data)
-            .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        let mut x = Tensor::scratch(pyr.channels, v.height(), v.width());
+        sample_into(pyr, &v.gbuf, &mut x.data).map_err(|e| TrainError::Kernel(e.to_string()))?;
         self.sh_modulate(v, &mut x.data)?;
         Ok(x)
     }
@@ -433,7 +479,7 @@ impl Trainer {
         let v: &View = &v;
         let (h, w) = (v.height(), v.width());
         let n = h * w;
-        // The features (what `features` computes, bit for bit), keeping the taps for the
+        // The features (what `features_of` computes, bit for bit), keeping the taps for the
         // texture's backward. SH leaves channels 0..2 alone, so after it `x` still holds the
         // raw colour features the mean-colour loss supervises.
         const _: () = assert!(
@@ -441,13 +487,17 @@ impl Trainer {
             "the colour loss reads channels 0..2 after SH"
         );
         let mut x = Tensor::scratch(self.pyr.channels, h, w);
-        let taps = sample_forward_taps(&self.pyr, &v.gbuf, &mut x.data)
+        // During fine-tuning the taps read the rounded texture; their positions and weights,
+        // all the backward uses, are those of the full-precision one (straight-through).
+        let taps = sample_forward_taps(&self.forward_pyramid(), &v.gbuf, &mut x.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         self.sh_modulate(v, &mut x.data)?;
         lap(&mut t, &mut ph.features);
 
         // Forward to straight colour and alpha, composite on white as the target is, L1, and
-        // backward to the feature image.
+        // backward to the feature image. During fine-tuning with int8 weights the network
+        // runs on the rounded weights and their gradients update the full-precision ones.
+        let int8 = self.qat_int8();
         let (loss, mut dx) = match &mut self.net {
             Net::None => {
                 let colour: Vec<f32> = x.data[..3 * n].iter().map(|&t| t.clamp(0.0, 1.0)).collect();
@@ -482,30 +532,46 @@ impl Trainer {
                 (loss, dx)
             }
             Net::Unet { net, .. } => {
-                let (y, acts) = net
-                    .forward(&x)
-                    .map_err(|e| TrainError::Kernel(e.to_string()))?;
-                let mut dy = Tensor::zeros(self.out_ch, h, w);
-                let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
-                y.recycle();
-                lap(&mut t, &mut ph.forward);
-                let dx = net.backward(&acts, &dy);
-                dy.recycle();
-                (loss, dx)
+                let full = int8.then(|| {
+                    let q = quantise::quantised_weights(&net.params.tensor_specs(), &net.weights);
+                    std::mem::replace(&mut net.weights, q)
+                });
+                let fwd = net.forward(&x);
+                let out = fwd.map(|(y, acts)| {
+                    let mut dy = Tensor::zeros(self.out_ch, h, w);
+                    let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                    y.recycle();
+                    lap(&mut t, &mut ph.forward);
+                    let dx = net.backward(&acts, &dy);
+                    dy.recycle();
+                    (loss, dx)
+                });
+                if let Some(full) = full {
+                    net.weights = full;
+                }
+                out.map_err(|e| TrainError::Kernel(e.to_string()))?
             }
             Net::Mlp { net, .. } => {
                 // Covered pixels only; the others are colour 0, alpha 0 (y = -1), constants.
                 let covered: Vec<bool> = v.gbuf.coverage.iter().map(|&c| c != 0.0).collect();
-                let (y, acts) = net
-                    .forward_frame(&x, &covered)
-                    .map_err(|e| TrainError::Kernel(e.to_string()))?;
-                let mut dy = Tensor::zeros(self.out_ch, h, w);
-                let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
-                y.recycle();
-                lap(&mut t, &mut ph.forward);
-                let dx = net.backward_frame(&acts, &dy);
-                dy.recycle();
-                (loss, dx)
+                let full = int8.then(|| {
+                    let q = quantise::quantised_weights(&net.params.tensor_specs(), &net.weights);
+                    std::mem::replace(&mut net.weights, q)
+                });
+                let fwd = net.forward_frame(&x, &covered);
+                let out = fwd.map(|(y, acts)| {
+                    let mut dy = Tensor::zeros(self.out_ch, h, w);
+                    let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                    y.recycle();
+                    lap(&mut t, &mut ph.forward);
+                    let dx = net.backward_frame(&acts, &dy);
+                    dy.recycle();
+                    (loss, dx)
+                });
+                if let Some(full) = full {
+                    net.weights = full;
+                }
+                out.map_err(|e| TrainError::Kernel(e.to_string()))?
             }
         };
         lap(&mut t, &mut ph.backward);
@@ -647,18 +713,21 @@ impl Trainer {
         let runtime = match &self.net {
             _ if texture_only => EvalNet::None,
             Net::Unet { net, .. } => EvalNet::Unet(
-                UNet::from_map(net.params.clone(), &net.to_map()).map_err(|e| kerr(&e))?,
+                UNet::from_map(net.params.clone(), &self.forward_map(net.to_map()))
+                    .map_err(|e| kerr(&e))?,
             ),
             Net::Mlp { net, .. } => EvalNet::Mlp(
-                Mlp::from_map(net.params.clone(), &net.to_map()).map_err(|e| kerr(&e))?,
+                Mlp::from_map(net.params.clone(), &self.forward_map(net.to_map()))
+                    .map_err(|e| kerr(&e))?,
             ),
             Net::None => EvalNet::None,
         };
+        let pyr = self.forward_pyramid();
         let mut out = Vec::with_capacity(views.len());
         for v in views {
             let (h, w) = (v.height(), v.width());
             let n = h * w;
-            let x = self.features(v)?;
+            let x = self.features_of(&pyr, v)?;
             let (colour, alpha): (Vec<f32>, Vec<f32>) = match &runtime {
                 EvalNet::None => (
                     x.data[..3 * n].iter().map(|t| t.clamp(0.0, 1.0)).collect(),

@@ -446,6 +446,9 @@ fn render(
         println!();
         print!("{}", errors.render());
     }
+    let decode = level_decode_table(asset, reps)?;
+    println!();
+    print!("{}", decode.render());
     if let Some(p) = markdown {
         let bytes = std::fs::metadata(asset)
             .with_context(|| asset.display().to_string())?
@@ -466,8 +469,68 @@ fn render(
             &times,
             &errors,
         );
+        let body = format!(
+            "{body}\nDecoding each texture level of the asset, re-encoded in each storage (`dnr_format` readers, min over {reps} runs):\n\n{}",
+            decode.render()
+        );
         write_section(p, &super::bench_tables::render_section(&name), &body)?;
         eprintln!("wrote the tables to {}", p.display());
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Decode time and bytes of each texture level of `asset` stored as EXR (ZIP, f16) and as
+/// quantised PNG at 8 and 4 bits (format revision 1.1), through `dnr_format`'s readers.
+fn level_decode_table(asset: &Path, reps: usize) -> Result<Table> {
+    use dnr_format::exr_codec::{decode_level, encode_level, LevelExpect};
+    use dnr_format::quant::{decode_png_level, encode_png_level};
+    let a = dnr_format::read_asset(asset).with_context(|| asset.display().to_string())?;
+    let mut t = Table::new(&[
+        ("level", Align::Right),
+        ("size", Align::Left),
+        ("storage", Align::Left),
+        ("bytes", Align::Right),
+        ("decode ms (min)", Align::Right),
+    ]);
+    let limits = dnr_format::Limits::default();
+    for tex in &a.textures {
+        for (li, l) in tex.levels.iter().enumerate() {
+            let expect = LevelExpect {
+                width: l.width,
+                height: l.height,
+                channels: l.channels,
+            };
+            let size = format!("{}x{}x{}", l.width, l.height, l.channels);
+            let exr = encode_level(l, li, dnr_format::LevelCompression::Zip)
+                .with_context(|| format!("level {li} as EXR"))?;
+            decode_level(&exr, expect, &limits).map_err(|p| anyhow::anyhow!("{}", p.error))?;
+            let (min, _) = dnr_bake::bench::time_min_median(reps, || {
+                std::hint::black_box(decode_level(&exr, expect, &limits).ok());
+            });
+            t.row(vec![
+                li.to_string(),
+                size.clone(),
+                "EXR f16 (ZIP)".into(),
+                exr.len().to_string(),
+                format!("{:.2}", 1e3 * min),
+            ]);
+            for bits in [8, 4] {
+                let (q, png) = encode_png_level(l, bits)
+                    .with_context(|| format!("level {li} as {bits}-bit PNG"))?;
+                decode_png_level(&png, expect, &q, &limits)
+                    .map_err(|p| anyhow::anyhow!("{}", p.error))?;
+                let (min, _) = dnr_bake::bench::time_min_median(reps, || {
+                    std::hint::black_box(decode_png_level(&png, expect, &q, &limits).ok());
+                });
+                t.row(vec![
+                    li.to_string(),
+                    size.clone(),
+                    format!("PNG q{bits}"),
+                    png.len().to_string(),
+                    format!("{:.2}", 1e3 * min),
+                ]);
+            }
+        }
+    }
+    Ok(t)
 }

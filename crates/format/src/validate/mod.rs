@@ -675,12 +675,38 @@ fn check_texture(
     let mut prev: Option<(u32, u32)> = None;
     for (li, l) in t.levels.iter().enumerate() {
         let p = lp.index(li);
-        if l.mime_type != model::LEVEL_MIME_TYPE {
+        let png = l.mime_type == model::LEVEL_MIME_TYPE_PNG;
+        let known_mime = png || l.mime_type == model::LEVEL_MIME_TYPE;
+        if !known_mime {
             ctx.report(
                 "TEXTURE_MIME_TYPE",
                 &p.key("mimeType"),
-                format!("mimeType `{}`, expected `image/x-exr`", l.mime_type),
+                format!(
+                    "mimeType `{}`, expected `image/x-exr` or `image/png`",
+                    l.mime_type
+                ),
             );
+        }
+        // The schema's if/then: quantization exactly on PNG levels.
+        let mut quant_ok = true;
+        if known_mime && png != l.quantization.is_some() {
+            ctx.report(
+                "JSON_SCHEMA",
+                &p,
+                if png {
+                    "an image/png level needs a quantization object"
+                } else {
+                    "quantization is only defined on image/png levels"
+                },
+            );
+            quant_ok = false;
+        }
+        if let (true, Some(q)) = (channels_ok, &l.quantization) {
+            let qp = p.key("quantization");
+            for (code, field, msg) in crate::quant::quantization_problems(q, t.channels) {
+                ctx.report(code, &qp.key(field), msg);
+                quant_ok = false;
+            }
         }
         if l.width == 0 || l.height == 0 {
             ctx.report(
@@ -722,7 +748,7 @@ fn check_texture(
                 continue;
             }
         };
-        if !channels_ok || l.mime_type != model::LEVEL_MIME_TYPE {
+        if !channels_ok || !known_mime || !quant_ok {
             continue;
         }
         let values = u64::from(l.width) * u64::from(l.height) * u64::from(t.channels);
@@ -743,6 +769,12 @@ fn check_texture(
             height: l.height,
             channels: t.channels,
         };
+        if let Some(q) = &l.quantization {
+            if let Err(pr) = crate::quant::decode_png_level(bytes, expect, q, limits) {
+                ctx.problem(pr, &p.key("bufferView"));
+            }
+            continue;
+        }
         let header = match read_level_header(bytes) {
             Ok(h) => h,
             Err(pr) => {
@@ -843,14 +875,14 @@ fn check_renderer(
             );
             continue;
         }
-        let Some(size) = w.dtype.size_of() else {
+        if !w.dtype.is_known() {
             ctx.report(
                 "WEIGHTS_DTYPE_UNKNOWN",
                 &p.key("dtype"),
-                format!("dtype `{}` is not f16 or f32", w.dtype),
+                format!("dtype `{}` is not f16, f32 or int8", w.dtype),
             );
             continue;
-        };
+        }
         let Some(count) = w.element_count() else {
             ctx.report("LIMIT_EXCEEDED", &p.key("shape"), "element count overflows");
             continue;
@@ -885,7 +917,8 @@ fn check_renderer(
                 ),
             );
         }
-        let len = count * size as u64; // count <= max_weight_elements, no overflow
+        // count <= max_weight_elements, so this cannot overflow.
+        let len = w.byte_length().unwrap_or(u64::MAX);
         let bytes = w
             .byte_offset
             .checked_add(len)
@@ -915,6 +948,36 @@ fn check_renderer(
                     w.name, w.crc32
                 ),
             );
+        }
+        if w.dtype == model::DType::Int8 {
+            let scales = crate::weights::int8_scales(bytes, &w.shape).unwrap_or_default();
+            let bad = scales
+                .iter()
+                .filter(|s| !(s.is_finite() && **s > 0.0))
+                .count();
+            if bad > 0 {
+                ctx.report(
+                    "WEIGHTS_SCALE_INVALID",
+                    &p,
+                    format!(
+                        "int8 tensor `{}` has {bad} row scales that are not finite and above 0",
+                        w.name
+                    ),
+                );
+            } else {
+                let overflows = crate::weights::int8_non_finite(bytes, &w.shape);
+                if overflows > 0 {
+                    ctx.report(
+                        "WEIGHTS_NON_FINITE",
+                        &p,
+                        format!(
+                            "int8 tensor `{}` has {overflows} values whose scale * q overflows f32",
+                            w.name
+                        ),
+                    );
+                }
+            }
+            continue;
         }
         let non_finite = match w.dtype {
             model::DType::F16 => bytes
@@ -1097,6 +1160,7 @@ mod tests {
                 wrap_t: WrapMode::Repeat,
                 view_dependence: None,
                 compression: LevelCompression::None,
+                storage: Vec::new(),
             });
             let r = b.add_renderer(RendererDesc {
                 renderer: model::Renderer::new(Architecture::None, 3, 3),

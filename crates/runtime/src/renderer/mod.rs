@@ -287,6 +287,7 @@ impl Renderer {
     ///     wrap_t: WrapMode::Repeat,
     ///     view_dependence: None,
     ///     compression: LevelCompression::None,
+    ///     storage: Vec::new(),
     /// });
     /// b.add_renderer(RendererDesc {
     ///     renderer: RendererSpec::new(Architecture::None, 3, 3),
@@ -431,6 +432,7 @@ impl Renderer {
     ///     wrap_t: WrapMode::ClampToEdge,
     ///     view_dependence: None,
     ///     compression: LevelCompression::None,
+    ///     storage: Vec::new(),
     /// });
     /// b.add_renderer(RendererDesc {
     ///     renderer: RendererSpec::new(Architecture::None, 3, 3),

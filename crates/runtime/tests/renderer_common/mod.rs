@@ -66,6 +66,7 @@ pub fn texture(
         wrap_t: wrap,
         view_dependence,
         compression: LevelCompression::Zip,
+        storage: Vec::new(),
     }
 }
 

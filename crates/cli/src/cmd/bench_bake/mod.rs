@@ -242,6 +242,9 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
                 limits: Default::default(),
                 write_f32: None,
                 write_unpruned: None,
+                storage: dnr_bake::storage::StorageMode::F16,
+                storage_bound_db: dnr_bake::storage::DEFAULT_BOUND_DB,
+                write_f16: None,
                 input: Default::default(),
             };
             let s = bake(&cfg, &opts).with_context(|| format!("baking `{stem}` of {name}"))?;

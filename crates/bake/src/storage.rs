@@ -1,0 +1,418 @@
+//! `--storage`: how the asset stores its texture levels and weights (f16, quantised PNG
+//! levels with `int8` weights), and `auto`'s choice by measurement on the validation views.
+//!
+//! Every candidate is measured as a reader sees it: the asset is encoded in memory, decoded
+//! by `dnr-format` and rendered by the runtime, so its cost includes every rounding.
+
+use serde::Serialize;
+
+use dnr_format::asset::LevelStorage;
+use dnr_format::model::DType;
+use dnr_format::Container;
+
+use crate::export::{self, Storage};
+use crate::pipeline::{BakeError, ExportParts, Loaded};
+use crate::train::quantise::QatTarget;
+
+/// Validation PSNR (dB) that `--storage auto` lets the smaller encodings cost, by default.
+pub const DEFAULT_BOUND_DB: f64 = 0.1;
+
+/// What `--storage` asks for.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub enum StorageMode {
+    /// EXR f16 levels and f16 weights (revision 1.0 assets).
+    #[default]
+    F16,
+    /// 8-bit PNG levels and `int8` weights.
+    Q8,
+    /// 4-bit PNG levels and `int8` weights.
+    Q4,
+    /// Per level and for the weights, the smallest encoding whose validation cost stays
+    /// under the bound.
+    Auto,
+}
+
+impl std::str::FromStr for StorageMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "f16" => Ok(StorageMode::F16),
+            "q8" => Ok(StorageMode::Q8),
+            "q4" => Ok(StorageMode::Q4),
+            "auto" => Ok(StorageMode::Auto),
+            _ => Err(format!(
+                "unknown storage '{s}' (expected f16, q8, q4 or auto)"
+            )),
+        }
+    }
+}
+
+impl StorageMode {
+    /// What quantisation-aware fine-tuning imitates for a pyramid of `levels` levels: the
+    /// encoding itself, and for auto the smallest it may choose (q4 levels, `int8` weights),
+    /// so whatever auto keeps was trained at least as coarsely.
+    pub fn qat_target(self, levels: usize) -> Option<QatTarget> {
+        let bits = match self {
+            StorageMode::F16 => return None,
+            StorageMode::Q8 => 8,
+            StorageMode::Q4 | StorageMode::Auto => 4,
+        };
+        Some(QatTarget {
+            level_bits: vec![Some(bits); levels],
+            int8_weights: true,
+        })
+    }
+}
+
+/// Bytes of an asset by part.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct PartBytes {
+    /// Each texture level's file (EXR or PNG), finest first.
+    pub levels: Vec<u64>,
+    /// The renderer's tensors.
+    pub weights: u64,
+    /// The fallback PNG.
+    pub fallback: u64,
+    /// Everything else of the binary buffer: mesh attributes and indices, padding.
+    pub mesh: u64,
+    /// The JSON chunk (with the GLB headers).
+    pub json: u64,
+    /// The whole `.glb`.
+    pub total: u64,
+}
+
+impl PartBytes {
+    /// Sum of the levels.
+    pub fn level_total(&self) -> u64 {
+        self.levels.iter().sum()
+    }
+}
+
+/// Bytes by part of a container as a `.glb`.
+pub fn part_bytes(c: &Container) -> Result<PartBytes, BakeError> {
+    let glb = c.to_glb().map_err(export_err)?;
+    let view_len = |i: u32| -> u64 {
+        c.root
+            .buffer_views
+            .get(i as usize)
+            .map_or(0, |v| v.byte_length.0)
+    };
+    let mut out = PartBytes {
+        total: glb.len() as u64,
+        ..PartBytes::default()
+    };
+    let mut counted = std::collections::BTreeSet::new();
+    if let Some(v) = dnr_format::asset::root_extension_value(&c.root) {
+        if let Ok(ext) = serde_json::from_value::<dnr_format::model::Extension>(v.clone()) {
+            for t in &ext.neural_textures {
+                for l in &t.levels {
+                    out.levels.push(view_len(l.buffer_view));
+                    counted.insert(l.buffer_view);
+                }
+            }
+            for r in &ext.renderers {
+                for w in &r.weights {
+                    if counted.insert(w.buffer_view) {
+                        out.weights += view_len(w.buffer_view);
+                    }
+                }
+            }
+        }
+    }
+    for img in &c.root.images {
+        if let Some(v) = &img.buffer_view {
+            let i = v.value() as u32;
+            if counted.insert(i) {
+                out.fallback += view_len(i);
+            }
+        }
+    }
+    let bin: u64 = c.buffers.iter().map(|b| b.len() as u64).sum();
+    let counted_bytes: u64 = counted.iter().map(|&i| view_len(i)).sum();
+    out.mesh = bin.saturating_sub(counted_bytes);
+    out.json = out.total.saturating_sub(bin);
+    Ok(out)
+}
+
+fn export_err(e: dnr_format::Error) -> BakeError {
+    BakeError::Export(export::ExportError::Format {
+        path: "(in memory)".into(),
+        source: e,
+    })
+}
+
+/// One storage measured: its bytes and its error on views through the runtime.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Measured {
+    /// Bytes by part.
+    pub bytes: PartBytes,
+    /// Mean PSNR (dB) on the views measured (NaN without views).
+    pub psnr: f64,
+}
+
+/// Encodes the parts with `storage` in memory, decodes and renders them on `frames`.
+pub fn measure(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    storage: &Storage,
+    frames: &[crate::capture::Frame],
+) -> Result<Measured, BakeError> {
+    let (bytes, psnr) = measure_on(loaded, parts, storage, &[frames])?;
+    Ok(Measured {
+        bytes,
+        psnr: psnr[0],
+    })
+}
+
+/// [`measure`] on several sets of frames from one encoding: the mean PSNR of each set.
+pub fn measure_on(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    storage: &Storage,
+    sets: &[&[crate::capture::Frame]],
+) -> Result<(PartBytes, Vec<f64>), BakeError> {
+    let builder = export::build_with(
+        &loaded.capture.mesh,
+        parts.pyr,
+        parts.sh,
+        parts.net,
+        parts.out_ch,
+        storage,
+    )?;
+    let container = builder.build_container().map_err(export_err)?;
+    let bytes = part_bytes(&container)?;
+    let asset = dnr_format::decode_asset(container, &dnr_format::Limits::unlimited())
+        .map_err(export_err)?;
+    let read_back = |message: String| BakeError::ReadBack {
+        path: "(in memory)".into(),
+        message,
+    };
+    let renderer = dnr_runtime::renderer::Renderer::from_asset(&asset)
+        .map_err(|e| read_back(e.to_string()))?;
+    let mut psnr = Vec::with_capacity(sets.len());
+    for frames in sets {
+        psnr.push(if frames.is_empty() {
+            f64::NAN
+        } else {
+            crate::eval::evaluate(&renderer, frames, None)
+                .map_err(|e| read_back(e.to_string()))?
+                .mean
+                .psnr
+        });
+    }
+    Ok((bytes, psnr))
+}
+
+/// One trial of auto: a part in an encoding, measured with the choices made before it.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Trial {
+    /// The part: `level 0 (512x512)` or `weights`.
+    pub part: String,
+    /// The encoding tried: `q4`, `q8`, `int8`.
+    pub encoding: String,
+    /// The part's bytes in that encoding.
+    pub bytes: u64,
+    /// The part's bytes in f16.
+    pub f16_bytes: u64,
+    /// Validation PSNR lost against all-f16 storage (dB), choices so far included.
+    pub cost_db: f64,
+    /// Whether it was kept.
+    pub chosen: bool,
+}
+
+/// What `--storage` chose and why (the bake report's `storage`).
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct StorageReport {
+    /// `--storage`.
+    pub mode: StorageMode,
+    /// `--storage-bound-db`.
+    pub bound_db: f64,
+    /// The storage written.
+    pub chosen: String,
+    /// Per level, finest first: `f16`, `q8` or `q4`.
+    pub levels: Vec<String>,
+    /// `f16` or `int8` (biases stay f16).
+    pub weights: String,
+    /// The storage the last part of training imitated, if any.
+    pub qat: Option<QatTarget>,
+    /// Auto's trials in order (empty for the fixed encodings).
+    pub trials: Vec<Trial>,
+    /// With quantised storage, the same trained state in every uniform storage and the
+    /// chosen one: bytes by part, validation and held-out test PSNR (empty for f16).
+    pub variants: Vec<Variant>,
+    /// Seconds spent choosing and measuring.
+    pub seconds: f64,
+}
+
+/// One storage of the same trained state, measured.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Variant {
+    /// `f16`, `q8`, `q4` or `chosen`.
+    pub name: String,
+    /// What it stores.
+    pub storage: String,
+    /// Bytes by part.
+    pub bytes: PartBytes,
+    /// Mean PSNR on the validation views.
+    pub val_psnr: f64,
+    /// Mean PSNR on the capture's test views.
+    pub test_psnr: f64,
+}
+
+/// Chooses the storage for `mode`: the fixed encodings as asked, auto by measurement. Also
+/// measures every uniform storage of the same state for the report.
+pub fn choose(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    mode: StorageMode,
+    bound_db: f64,
+    qat: Option<QatTarget>,
+) -> Result<(Storage, StorageReport), BakeError> {
+    let t0 = std::time::Instant::now();
+    let n = parts.pyr.levels.len();
+    let val: Vec<crate::capture::Frame> = loaded
+        .val_idx
+        .iter()
+        .filter_map(|&i| loaded.capture.train.get(i).cloned())
+        .collect();
+    let f16 = Storage::uniform(LevelStorage::Exr, n);
+    let mut trials = Vec::new();
+    let chosen = match mode {
+        StorageMode::F16 => f16.clone(),
+        StorageMode::Q8 => Storage::uniform(LevelStorage::Q8, n),
+        StorageMode::Q4 => Storage::uniform(LevelStorage::Q4, n),
+        StorageMode::Auto => {
+            let base = measure(loaded, parts, &f16, &val)?;
+            let mut cur = f16.clone();
+            // Finest level first: it holds most of the bytes.
+            for li in 0..n {
+                let l = &parts.pyr.levels[li];
+                for enc in [LevelStorage::Q4, LevelStorage::Q8] {
+                    let mut trial = cur.clone();
+                    trial.levels[li] = enc;
+                    let m = measure(loaded, parts, &trial, &val)?;
+                    let cost = base.psnr - m.psnr;
+                    // Without validation views nothing can be measured: keep f16.
+                    let ok = cost.is_finite() && cost <= bound_db;
+                    trials.push(Trial {
+                        part: format!("level {li} ({}x{})", l.width, l.height),
+                        encoding: enc.name().into(),
+                        bytes: m.bytes.levels.get(li).copied().unwrap_or(0),
+                        f16_bytes: base.bytes.levels.get(li).copied().unwrap_or(0),
+                        cost_db: cost,
+                        chosen: ok,
+                    });
+                    if ok {
+                        cur = trial;
+                        break;
+                    }
+                }
+            }
+            if base.bytes.weights > 0 {
+                let trial = Storage {
+                    weights: DType::Int8,
+                    ..cur.clone()
+                };
+                let m = measure(loaded, parts, &trial, &val)?;
+                let cost = base.psnr - m.psnr;
+                let ok = cost.is_finite() && cost <= bound_db;
+                trials.push(Trial {
+                    part: "weights".into(),
+                    encoding: "int8".into(),
+                    bytes: m.bytes.weights,
+                    f16_bytes: base.bytes.weights,
+                    cost_db: cost,
+                    chosen: ok,
+                });
+                if ok {
+                    cur = trial;
+                }
+            }
+            cur
+        }
+    };
+    let mut variants = Vec::new();
+    // f16 bakes (the default) cost nothing more than before; quantised ones measure every
+    // uniform storage of the same state for the report.
+    let compared = if mode == StorageMode::F16 {
+        Vec::new()
+    } else {
+        vec![
+            ("f16", f16.clone()),
+            ("q8", Storage::uniform(LevelStorage::Q8, n)),
+            ("q4", Storage::uniform(LevelStorage::Q4, n)),
+            ("chosen", chosen.clone()),
+        ]
+    };
+    for (name, s) in compared {
+        let (bytes, psnr) = measure_on(loaded, parts, &s, &[&val, &loaded.capture.test])?;
+        variants.push(Variant {
+            name: name.into(),
+            storage: s.describe(),
+            bytes,
+            val_psnr: psnr[0],
+            test_psnr: psnr[1],
+        });
+    }
+    let report = StorageReport {
+        mode,
+        bound_db,
+        chosen: chosen.describe(),
+        levels: (0..n)
+            .map(|i| {
+                chosen
+                    .levels
+                    .get(i)
+                    .copied()
+                    .unwrap_or_default()
+                    .name()
+                    .into()
+            })
+            .collect(),
+        weights: chosen.weights.to_string(),
+        qat,
+        trials,
+        variants,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    Ok((chosen, report))
+}
+
+/// The report's storage section as text lines (what `dnr-bake` prints).
+pub fn describe(r: &StorageReport) -> Vec<String> {
+    let mut out = vec![format!(
+        "storage {:?} (bound {} dB): {}",
+        r.mode, r.bound_db, r.chosen
+    )];
+    for t in &r.trials {
+        out.push(format!(
+            "  {} as {}: {} bytes (f16 {}), costs {:.3} dB{}",
+            t.part,
+            t.encoding,
+            t.bytes,
+            t.f16_bytes,
+            t.cost_db,
+            if t.chosen { ", chosen" } else { "" }
+        ));
+    }
+    for v in &r.variants {
+        out.push(format!(
+            "  {:>6}: {} bytes (levels {}, weights {}, fallback {}, mesh {}), validation {:.2} dB, test {:.2} dB",
+            v.name,
+            v.bytes.total,
+            v.bytes.level_total(),
+            v.bytes.weights,
+            v.bytes.fallback,
+            v.bytes.mesh,
+            v.val_psnr,
+            v.test_psnr
+        ));
+    }
+    out
+}

@@ -1,0 +1,152 @@
+//! Quantisation-aware fine-tuning: over the last [`QAT_FRACTION`] of training the forward
+//! pass reads the texture levels and the weights as the asset will store them (quantised
+//! PNG levels, `int8` weights), and the gradient of each stored value is applied to the
+//! full-precision value it was rounded from (the straight-through estimator). So the asset
+//! holds what was optimised, not a rounding of it.
+//!
+//! The rounding is `dnr_format`'s own ([`dnr_format::quant`], [`dnr_format::weights`]), with
+//! parameters fitted to the current values exactly as the exporter fits them, so the forward
+//! pass of the last step sees bit for bit what a reader decodes.
+
+use dnr_format::quant::{fake_quantise_hwc, fit_parameters_hwc};
+use dnr_format::weights::{int8_dequantise, int8_quantise};
+use dnr_runtime::texture::Pyramid;
+use serde::Serialize;
+
+/// Fraction of the training progress, at the end, trained through fake quantisation.
+pub const QAT_FRACTION: f64 = 0.15;
+
+/// Progress (0..1) at which fake quantisation starts.
+pub const QAT_START: f64 = 1.0 - QAT_FRACTION;
+
+/// The storage the forward pass imitates.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct QatTarget {
+    /// Bits of each level, finest first (`None`: stored as f16, not rounded here; levels past
+    /// the end are `None` too).
+    pub level_bits: Vec<Option<u32>>,
+    /// Whether the tensors of rank 2 or more are stored `int8` (biases stay f16).
+    pub int8_weights: bool,
+}
+
+impl QatTarget {
+    /// Whether it rounds nothing.
+    pub fn is_identity(&self) -> bool {
+        !self.int8_weights && self.level_bits.iter().all(Option::is_none)
+    }
+}
+
+/// Rounds one level's values (texel-interleaved, `channels` each) through `bits`-bit storage,
+/// in place, with the parameters the exporter would choose for them.
+pub fn fake_quantise_level(data: &mut [f32], channels: usize, bits: u32) {
+    let (scale, offset) = fit_parameters_hwc(data, channels, bits);
+    fake_quantise_hwc(data, &scale, &offset, bits);
+}
+
+/// The pyramid as a reader of the asset will decode it (levels without bits unchanged).
+pub fn quantised_pyramid(pyr: &Pyramid, level_bits: &[Option<u32>]) -> Pyramid {
+    let mut out = pyr.clone();
+    for (level, bits) in out.levels.iter_mut().zip(level_bits) {
+        if let Some(bits) = bits {
+            fake_quantise_level(&mut level.data, pyr.channels, *bits);
+        }
+    }
+    out
+}
+
+/// Rounds a tensor through `int8` storage in place (per first-axis row, as the exporter
+/// stores it); tensors of rank below 2 (biases, stored f16) are left as they are.
+pub fn fake_int8(shape: &[usize], data: &mut [f32]) {
+    if shape.len() < 2 {
+        return;
+    }
+    let shape32: Vec<u32> = shape.iter().map(|&d| d as u32).collect();
+    let scales = dnr_format::weights::int8_fit_scales(&shape32, data);
+    let per = (data.len() / scales.len().max(1)).max(1);
+    for (i, v) in data.iter_mut().enumerate() {
+        let s = scales[i / per];
+        *v = int8_dequantise(int8_quantise(*v, s), s);
+    }
+}
+
+/// The network's tensors as an `int8` asset stores them (`specs` gives each tensor's shape,
+/// in the order of `weights`).
+pub fn quantised_weights(specs: &[(String, Vec<usize>)], weights: &[Vec<f32>]) -> Vec<Vec<f32>> {
+    specs
+        .iter()
+        .zip(weights)
+        .map(|((_, shape), w)| {
+            let mut q = w.clone();
+            fake_int8(shape, &mut q);
+            q
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dnr_format::asset::LevelStorage;
+    use dnr_format::TextureLevel;
+    use dnr_runtime::texture::Level;
+
+    #[test]
+    fn fake_quantisation_is_what_the_format_decodes() {
+        let data: Vec<f32> = (0..7 * 5 * 6)
+            .map(|i| ((i * 53 % 97) as f32 / 40.0 - 1.1) * (1 + i % 6) as f32)
+            .collect();
+        for (bits, storage) in [(8, LevelStorage::Q8), (4, LevelStorage::Q4)] {
+            let pyr = Pyramid {
+                channels: 6,
+                levels: vec![Level {
+                    width: 7,
+                    height: 5,
+                    data: data.clone(),
+                }],
+                ..Pyramid::default()
+            };
+            let q = quantised_pyramid(&pyr, &[Some(bits)]);
+            assert_ne!(q.levels[0].data, data);
+            let level = TextureLevel {
+                width: 7,
+                height: 5,
+                channels: 6,
+                data: data.clone(),
+            };
+            let (quant, png) = dnr_format::quant::encode_png_level(&level, bits).unwrap();
+            let back = dnr_format::quant::decode_png_level(
+                &png,
+                dnr_format::exr_codec::LevelExpect {
+                    width: 7,
+                    height: 5,
+                    channels: 6,
+                },
+                &quant,
+                &dnr_format::Limits::default(),
+            )
+            .unwrap();
+            assert_eq!(back.data, q.levels[0].data, "{storage:?}");
+        }
+    }
+
+    #[test]
+    fn int8_fake_quantisation_matches_the_codec() {
+        let shape = [3usize, 4];
+        let data: Vec<f32> = (0..12).map(|i| (i as f32 - 5.5) * 0.37).collect();
+        let mut q = data.clone();
+        fake_int8(&shape, &mut q);
+        let bytes = dnr_format::weights::encode_int8("w", &[3, 4], &data).unwrap();
+        let back = dnr_format::weights::decode_tensor(
+            &bytes,
+            &[3, 4],
+            &dnr_format::model::DType::Int8,
+            &dnr_format::Limits::default(),
+        )
+        .unwrap();
+        assert_eq!(q, back);
+        let mut bias = vec![0.123f32, 4.56];
+        fake_int8(&[2], &mut bias);
+        assert_eq!(bias, [0.123, 4.56]);
+    }
+}

@@ -1,0 +1,245 @@
+//! `--storage`: bakes of the sample capture with quantised storage write revision 1.1 assets
+//! that validate and store what was asked (PNG levels at the asked depth, `int8` weight
+//! matrices, f16 biases); the last part of training runs through the rounding; the report
+//! lists every storage of the same state, and its `chosen` row is the asset that was written.
+
+mod capture_common;
+
+use std::path::Path;
+
+use dnr_bake::bake::{bake, BakeOptions, Summary};
+use dnr_bake::storage::StorageMode;
+use dnr_bake::train::config::{Arch, Preset, TrainConfig};
+use dnr_format::model::DType;
+use serde_json::Value;
+
+fn cfg() -> TrainConfig {
+    TrainConfig {
+        resolution: 32,
+        levels: 2,
+        channels: 12,
+        arch: Arch::Unet,
+        widths: vec![4, 8],
+        steps: 40,
+        time_budget: 0.0,
+        eval_every: 0.0,
+        threads: 2,
+        seed: 7,
+        ..TrainConfig::preset(Preset::Fast)
+    }
+}
+
+fn opts(out: &Path, storage: StorageMode, bound_db: f64) -> BakeOptions {
+    BakeOptions {
+        capture: capture_common::sample_capture(),
+        output: out.to_path_buf(),
+        mesh: None,
+        report: Some(out.with_extension("json")),
+        resume: false,
+        progress: false,
+        checkpoint_every: 1e9,
+        limits: Default::default(),
+        write_f32: None,
+        write_unpruned: None,
+        storage,
+        storage_bound_db: bound_db,
+        write_f16: Some(out.with_extension("f16.glb")),
+        input: Default::default(),
+    }
+}
+
+fn run(out: &Path, storage: StorageMode, bound_db: f64) -> (Summary, Value) {
+    let summary = bake(&cfg(), &opts(out, storage, bound_db)).unwrap();
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+            .unwrap();
+    (summary, report)
+}
+
+fn assert_clean(path: &Path) {
+    let r = dnr_format::validate_file(path, &dnr_format::Limits::default()).unwrap();
+    assert!(r.issues.is_empty(), "{}: {:#?}", path.display(), r.issues);
+}
+
+/// Per level, finest first, the quantisation bits (`None`: EXR).
+type LevelBits = Vec<Option<u32>>;
+/// Per tensor, its shape and dtype.
+type TensorTypes = Vec<(Vec<u32>, DType)>;
+
+/// The stored encodings of the asset's first texture and first renderer.
+fn encodings(path: &Path) -> (LevelBits, TensorTypes) {
+    let c = dnr_format::Container::read(path, &dnr_format::Limits::default()).unwrap();
+    let v = dnr_format::asset::root_extension_value(&c.root).unwrap();
+    let ext: dnr_format::model::Extension = serde_json::from_value(v.clone()).unwrap();
+    let levels = ext.neural_textures[0]
+        .levels
+        .iter()
+        .map(|l| l.quantization.as_ref().map(|q| q.bits))
+        .collect();
+    let weights = ext.renderers[0]
+        .weights
+        .iter()
+        .map(|w| (w.shape.clone(), w.dtype.clone()))
+        .collect();
+    (levels, weights)
+}
+
+fn variant<'a>(report: &'a Value, name: &str) -> &'a Value {
+    report["storage"]["variants"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["name"] == name)
+        .unwrap_or_else(|| panic!("no variant {name}"))
+}
+
+#[test]
+fn quantised_bakes_store_what_was_asked_and_report_every_storage() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut level_bytes = Vec::new();
+    for (mode, bits) in [(StorageMode::Q8, 8), (StorageMode::Q4, 4)] {
+        let out = dir.path().join(format!("q{bits}.glb"));
+        let (summary, report) = run(&out, mode, 0.1);
+        assert_clean(&out);
+        assert_clean(&out.with_extension("f16.glb"));
+        let (levels, weights) = encodings(&out);
+        assert_eq!(levels, vec![Some(bits); levels.len()], "q{bits}");
+        for (shape, dtype) in &weights {
+            let want = if shape.len() >= 2 {
+                DType::Int8
+            } else {
+                DType::F16
+            };
+            assert_eq!(*dtype, want, "tensor of shape {shape:?}");
+        }
+        let (f16_levels, f16_weights) = encodings(&out.with_extension("f16.glb"));
+        assert!(f16_levels.iter().all(Option::is_none));
+        assert!(f16_weights.iter().all(|(_, d)| *d == DType::F16));
+
+        let storage = &report["storage"];
+        assert_eq!(storage["mode"], format!("q{bits}"));
+        let qat = &storage["qat"];
+        assert_eq!(qat["int8Weights"], true, "{qat}");
+        assert!(
+            qat["levelBits"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|b| b.as_u64() == Some(u64::from(bits))),
+            "{qat}"
+        );
+        // The chosen row is the written asset: its bytes and, rendered by the runtime, its
+        // held-out PSNR.
+        let chosen = variant(&report, "chosen");
+        let file_len = std::fs::metadata(&out).unwrap().len();
+        assert_eq!(chosen["bytes"]["total"].as_u64(), Some(file_len));
+        assert_eq!(summary.asset_bytes, file_len);
+        let test_psnr = chosen["testPsnr"].as_f64().unwrap();
+        assert!(
+            (test_psnr - summary.test_psnr).abs() < 1e-9,
+            "{test_psnr} vs {}",
+            summary.test_psnr
+        );
+        let f16 = variant(&report, "f16");
+        assert_eq!(
+            f16["bytes"]["total"].as_u64(),
+            Some(
+                std::fs::metadata(out.with_extension("f16.glb"))
+                    .unwrap()
+                    .len()
+            )
+        );
+        let level_total = |v: &Value| -> u64 {
+            v["bytes"]["levels"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|b| b.as_u64().unwrap())
+                .sum()
+        };
+        assert!(
+            chosen["bytes"]["weights"].as_u64() < f16["bytes"]["weights"].as_u64(),
+            "int8 weights are smaller"
+        );
+        // Quantisation costs little on a model this small: within 1 dB of f16.
+        let f16_test = f16["testPsnr"].as_f64().unwrap();
+        assert!(
+            test_psnr > f16_test - 1.0,
+            "q{bits} {test_psnr} dB, f16 {f16_test} dB"
+        );
+        level_bytes.push((
+            level_total(f16),
+            level_total(variant(&report, "q8")),
+            level_total(variant(&report, "q4")),
+        ));
+    }
+    for (f16, q8, q4) in level_bytes {
+        assert!(
+            q4 < q8 && q8 < f16,
+            "level bytes f16 {f16}, q8 {q8}, q4 {q4}"
+        );
+    }
+}
+
+#[test]
+fn auto_storage_keeps_only_what_costs_less_than_the_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("auto.glb");
+    let bound = 0.1;
+    let (summary, report) = run(&out, StorageMode::Auto, bound);
+    assert_clean(&out);
+    let storage = &report["storage"];
+    assert_eq!(storage["mode"], "auto");
+    let trials = storage["trials"].as_array().unwrap();
+    // Each level is tried (q4 first), then the weights.
+    assert!(trials.len() >= 3, "{trials:?}");
+    for t in trials {
+        let cost = t["costDb"].as_f64().unwrap();
+        if t["chosen"] == true {
+            assert!(cost <= bound, "{t}");
+        } else {
+            assert!(cost > bound, "{t}");
+        }
+    }
+    // What the asset stores is what the report says was chosen.
+    let (levels, weights) = encodings(&out);
+    let names: Vec<&str> = storage["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    let stored: Vec<&str> = levels
+        .iter()
+        .map(|b| match b {
+            None => "f16",
+            Some(8) => "q8",
+            Some(4) => "q4",
+            Some(_) => "?",
+        })
+        .collect();
+    assert_eq!(names, stored);
+    let int8 = weights.iter().any(|(_, d)| *d == DType::Int8);
+    assert_eq!(storage["weights"] == "int8", int8, "{storage}");
+    let chosen = variant(&report, "chosen");
+    assert!((chosen["testPsnr"].as_f64().unwrap() - summary.test_psnr).abs() < 1e-9);
+}
+
+#[test]
+fn f16_bakes_write_revision_1_0_and_measure_nothing_more() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f16.glb");
+    let (_, report) = run(&out, StorageMode::F16, 0.1);
+    assert_clean(&out);
+    let (levels, weights) = encodings(&out);
+    assert!(levels.iter().all(Option::is_none));
+    assert!(weights.iter().all(|(_, d)| *d == DType::F16));
+    let storage = &report["storage"];
+    assert_eq!(storage["qat"], Value::Null);
+    assert_eq!(storage["variants"].as_array().map(Vec::len), Some(0));
+    // --write-f16 of an f16 bake is the same asset.
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        std::fs::read(out.with_extension("f16.glb")).unwrap()
+    );
+}
