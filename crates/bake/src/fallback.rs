@@ -39,7 +39,8 @@ pub struct Probe {
     pub rgb: [f32; 3],
 }
 
-/// The covered, valid pixels of `views` with finite UVs (every k-th past [`MAX_PROBES`]).
+/// The covered, valid pixels of `views` with finite UVs (every k-th pixel when the views
+/// hold more than about two million).
 pub fn probes(views: &[View]) -> Vec<Probe> {
     let total: usize = views.iter().map(|v| v.width() * v.height()).sum();
     let stride = total.div_ceil(MAX_PROBES).max(1);
