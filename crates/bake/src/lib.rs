@@ -15,6 +15,7 @@ pub mod bench;
 pub mod capture;
 pub mod eval;
 pub mod export;
+pub mod fallback;
 pub mod fixed;
 pub mod kernels;
 pub mod pipeline;

@@ -174,14 +174,7 @@ pub fn measure_on(
     storage: &Storage,
     sets: &[&[crate::capture::Frame]],
 ) -> Result<(PartBytes, Vec<f64>), BakeError> {
-    let builder = export::build_with(
-        &loaded.capture.mesh,
-        parts.pyr,
-        parts.sh,
-        parts.net,
-        parts.out_ch,
-        storage,
-    )?;
+    let builder = crate::pipeline::build_asset(loaded, parts, storage)?;
     let container = builder.build_container().map_err(export_err)?;
     let bytes = part_bytes(&container)?;
     let asset = dnr_format::decode_asset(container, &dnr_format::Limits::unlimited())

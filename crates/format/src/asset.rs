@@ -628,6 +628,19 @@ pub struct NeuralTextureDesc {
     pub storage: Vec<LevelStorage>,
 }
 
+impl NeuralTextureDesc {
+    /// The texture as a reader decodes it before storage (f32 levels, no quantisation).
+    pub fn decoded(&self) -> DecodedTexture {
+        DecodedTexture {
+            channels: self.levels.first().map_or(0, |l| l.channels),
+            levels: self.levels.clone(),
+            wrap_s: self.wrap_s,
+            wrap_t: self.wrap_t,
+            view_dependence: self.view_dependence.clone(),
+        }
+    }
+}
+
 /// How one level is stored.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum LevelStorage {
@@ -688,7 +701,8 @@ pub struct MaterialDesc {
 
 /// Builds a complete, valid asset: meshes, nodes, neural textures, renderers, the bindings
 /// on the mesh primitives and, per [`MaterialDesc`], a fallback material with a PNG (channels
-/// 0..2 of the summed pyramid at the finest resolution) and `KHR_materials_unlit`.
+/// 0..2 of the summed pyramid at the finest resolution, or box-filtered smaller per
+/// [`AssetBuilder::fallback_halvings`]) and `KHR_materials_unlit`.
 #[derive(Clone, Debug, Default)]
 pub struct AssetBuilder {
     /// `asset.generator`.
@@ -704,6 +718,10 @@ pub struct AssetBuilder {
     /// Neural bindings with their fallback materials (glTF material `i` is the fallback of
     /// `materials[i]`).
     pub materials: Vec<MaterialDesc>,
+    /// Per neural texture (by index), how many times its fallback PNG is halved from the
+    /// finest level's size (box filter, [`downsample_rgba8`]); textures not listed keep the
+    /// finest size.
+    pub fallback_halvings: BTreeMap<usize, u32>,
 }
 
 /// Accumulates bufferViews in one buffer, each 4-byte aligned.
@@ -767,6 +785,11 @@ impl AssetBuilder {
     pub fn add_renderer(&mut self, r: RendererDesc) -> usize {
         self.renderers.push(r);
         self.renderers.len() - 1
+    }
+
+    /// Halves the fallback PNG of neural texture `texture` `halvings` times (box filter).
+    pub fn set_fallback_halvings(&mut self, texture: usize, halvings: u32) {
+        self.fallback_halvings.insert(texture, halvings);
     }
 
     /// Adds a neural binding with its fallback material, returning its index (for
@@ -879,14 +902,10 @@ impl AssetBuilder {
                 wrap_t: Checked::Valid(t.wrap_t.to_json()),
                 ..Default::default()
             });
-            let decoded = DecodedTexture {
-                channels,
-                levels: t.levels.clone(),
-                wrap_s: t.wrap_s,
-                wrap_t: t.wrap_t,
-                view_dependence: t.view_dependence.clone(),
-            };
-            let png = fallback_png(&decoded)?;
+            let (w, h, rgba) = fallback_rgba8(&t.decoded())?;
+            let halvings = self.fallback_halvings.get(&ti).copied().unwrap_or(0);
+            let (w, h, rgba) = downsample_rgba8(w, h, &rgba, halvings);
+            let png = encode_png_rgba8(w, h, &rgba)?;
             let png_view = bin.push(&png, None)?;
             let image = root.images.len();
             root.images.push(json::Image {
@@ -1233,6 +1252,49 @@ pub fn fallback_png(t: &DecodedTexture) -> Result<Vec<u8>> {
     encode_png_rgba8(w, h, &rgba)
 }
 
+/// The size after `halvings` halvings: each side halved (rounding down) `halvings` times,
+/// at least 1.
+pub fn halved_size(width: u32, height: u32, halvings: u32) -> (u32, u32) {
+    let half = |n: u32| n.checked_shr(halvings).unwrap_or(0).max(1);
+    (half(width), half(height))
+}
+
+/// Box-filters RGBA8 pixels down to [`halved_size`]: each output texel is the rounded mean
+/// of the input texels its footprint covers (whole texels; odd sizes give some footprints an
+/// extra row or column). `halvings == 0` returns the input unchanged.
+pub fn downsample_rgba8(
+    width: u32,
+    height: u32,
+    rgba: &[u8],
+    halvings: u32,
+) -> (u32, u32, Vec<u8>) {
+    let (w, h) = halved_size(width, height, halvings);
+    if (w, h) == (width, height) {
+        return (width, height, rgba.to_vec());
+    }
+    let (sw, sh) = (width as usize, height as usize);
+    let (w, h) = (w as usize, h as usize);
+    let mut out = Vec::with_capacity(w * h * 4);
+    for y in 0..h {
+        let (y0, y1) = (y * sh / h, ((y + 1) * sh / h).max(y * sh / h + 1));
+        for x in 0..w {
+            let (x0, x1) = (x * sw / w, ((x + 1) * sw / w).max(x * sw / w + 1));
+            let mut sum = [0u64; 4];
+            for yy in y0..y1.min(sh) {
+                for xx in x0..x1.min(sw) {
+                    let i = 4 * (yy * sw + xx);
+                    for (c, s) in sum.iter_mut().enumerate() {
+                        *s += u64::from(rgba.get(i + c).copied().unwrap_or(0));
+                    }
+                }
+            }
+            let n = ((y1.min(sh) - y0) * (x1.min(sw) - x0)).max(1) as u64;
+            out.extend(sum.iter().map(|s| ((s + n / 2) / n) as u8));
+        }
+    }
+    (w as u32, h as u32, out)
+}
+
 /// Encodes RGBA8 pixels as PNG (deterministic).
 pub fn encode_png_rgba8(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>> {
     let mut out = Vec::new();
@@ -1249,6 +1311,24 @@ pub fn encode_png_rgba8(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn downsample_is_a_box_filter() {
+        // 4x2 -> 2x1: each output texel averages a 2x2 block.
+        let px = |v: u8| [v, v, v, 255];
+        let rgba: Vec<u8> = [0, 10, 100, 200, 2, 12, 102, 202]
+            .into_iter()
+            .flat_map(px)
+            .collect();
+        let (w, h, out) = downsample_rgba8(4, 2, &rgba, 1);
+        assert_eq!((w, h), (2, 1));
+        assert_eq!(out, [6, 6, 6, 255, 151, 151, 151, 255]);
+        assert_eq!(downsample_rgba8(4, 2, &rgba, 0).2, rgba);
+        // Never below one texel; odd sizes cover every input texel.
+        assert_eq!(halved_size(5, 3, 8), (1, 1));
+        let (w, h, out) = downsample_rgba8(3, 1, &[px(3), px(6), px(9)].concat(), 1);
+        assert_eq!((w, h, out), (1, 1, vec![6, 6, 6, 255]));
+    }
 
     #[test]
     fn wrap_modes_follow_design() {

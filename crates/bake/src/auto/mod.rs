@@ -321,6 +321,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         sh,
         net: &net,
         out_ch,
+        fallback_halvings: 0,
     };
     let (pruned_bytes, pruned_ms) =
         pipeline::measure_asset(&loaded, &parts, opts, None, loaded.val_frame())?;

@@ -16,6 +16,7 @@ use crate::train::checkpoint;
 use crate::train::config::TrainConfig;
 use crate::train::views::{self, View};
 use crate::train::{Record, Recovery, RunState, Trainer};
+use dnr_format::model::DType;
 
 pub use progress::Progress;
 
@@ -104,6 +105,8 @@ struct Report<'a, A: Serialize> {
     auto: Option<&'a A>,
     /// `--storage`: the encoding of each part, auto's trials, every storage measured.
     storage: &'a crate::storage::StorageReport,
+    /// The fallback PNG's size and every candidate measured.
+    fallback: &'a crate::fallback::FallbackReport,
     summary: &'a Summary,
 }
 
@@ -254,6 +257,8 @@ pub struct ExportParts<'a> {
     pub net: &'a ExportNet,
     /// Output channels (4 with alpha).
     pub out_ch: usize,
+    /// Halvings of the fallback PNG from the finest level's size (see [`crate::fallback`]).
+    pub fallback_halvings: u32,
 }
 
 impl<'a> ExportParts<'a> {
@@ -264,8 +269,27 @@ impl<'a> ExportParts<'a> {
             sh: trainer.sh_layer(),
             net,
             out_ch: trainer.out_ch,
+            fallback_halvings: 0,
         }
     }
+}
+
+/// Builds an asset (not yet encoded).
+pub fn build_asset(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    storage: &export::Storage,
+) -> Result<dnr_format::asset::AssetBuilder, BakeError> {
+    let mut builder = export::build_with(
+        &loaded.capture.mesh,
+        parts.pyr,
+        parts.sh,
+        parts.net,
+        parts.out_ch,
+        storage,
+    )?;
+    builder.set_fallback_halvings(0, parts.fallback_halvings);
+    Ok(builder)
 }
 
 /// Builds and writes an asset atomically; returns its size.
@@ -275,15 +299,44 @@ pub fn write_asset(
     storage: &export::Storage,
     path: &Path,
 ) -> Result<u64, BakeError> {
-    let builder = export::build_with(
-        &loaded.capture.mesh,
-        parts.pyr,
-        parts.sh,
-        parts.net,
-        parts.out_ch,
-        storage,
-    )?;
+    let builder = build_asset(loaded, parts, storage)?;
     Ok(export::write(&builder, path)?)
+}
+
+/// Chooses the fallback PNG's size ([`crate::fallback`]) on the validation views (the
+/// training views when there are none).
+pub fn choose_fallback(
+    loaded: &Loaded,
+    parts: &ExportParts,
+) -> Result<crate::fallback::FallbackReport, BakeError> {
+    let builder = build_asset(loaded, parts, &export::Storage::exr(DType::F16))?;
+    let err = |source| {
+        BakeError::Export(export::ExportError::Format {
+            path: "(fallback)".into(),
+            source,
+        })
+    };
+    let tex = builder
+        .textures
+        .first()
+        .ok_or_else(|| err(dnr_format::Error::invalid("no neural texture")))?;
+    let (w, h, rgba) = dnr_format::asset::fallback_rgba8(&tex.decoded()).map_err(err)?;
+    let (views, name) = if loaded.val().is_empty() {
+        (loaded.fit(), "training")
+    } else {
+        (loaded.val(), "validation")
+    };
+    let probes = crate::fallback::probes(views);
+    crate::fallback::choose(
+        w,
+        h,
+        &rgba,
+        (tex.wrap_s, tex.wrap_t),
+        &probes,
+        name,
+        crate::fallback::BOUND_DB,
+    )
+    .map_err(err)
 }
 
 /// Held-out error (PSNR, object MSE, SSIM) of a written asset through the runtime.
@@ -371,6 +424,16 @@ pub fn finish<A: Serialize>(
     opts: &BakeOptions,
     t_start: Instant,
 ) -> Result<Summary, BakeError> {
+    let fallback = choose_fallback(loaded, parts)?;
+    if opts.progress || opts.input.verbose {
+        for line in crate::fallback::describe(&fallback) {
+            eprintln!("dnr-bake: {line}");
+        }
+    }
+    let parts = &ExportParts {
+        fallback_halvings: fallback.halvings,
+        ..*parts
+    };
     let (storage, storage_report) = crate::storage::choose(
         loaded,
         parts,
@@ -434,6 +497,7 @@ pub fn finish<A: Serialize>(
             load: &loaded.load,
             auto: outcome.auto,
             storage: &storage_report,
+            fallback: &fallback,
             summary: &summary,
         };
         let text = serde_json::to_string_pretty(&rep).expect("report serialises");

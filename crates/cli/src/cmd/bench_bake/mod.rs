@@ -1,7 +1,8 @@
 //! `dnr bench bake CAPTURE...`: held-out error against bake seconds, on one capture or a
 //! whole development set, for presets, baselines and (with `--torch`) the PyTorch reference
 //! at the same seconds on the same machine; per capture a JSON table, and for the set the
-//! mean and worst case, a Markdown table and one PNG plot.
+//! mean and worst case, Markdown tables and two PNG plots (held-out PSNR against seconds and
+//! against asset bytes, each storage of the same trained state a point, see `bytes`).
 //!
 //! Every preset's learning-rate schedule spans its budget, so each configuration bakes once
 //! per budget, and each cell is that bake's exported asset evaluated through the runtime on
@@ -10,6 +11,7 @@
 //! validation checks and exclude the test-view records, as `dnr-bake` reports them; the
 //! PyTorch reference's seconds likewise exclude its evaluation.
 
+mod bytes;
 mod configs;
 mod peer;
 mod plot;
@@ -65,6 +67,10 @@ pub struct BakeArgs {
     /// Also write the tables as Markdown here.
     #[arg(long)]
     pub markdown: Option<PathBuf>,
+    /// Storage of the assets (`dnr-bake --storage`): f16, or q8, q4, auto, whose reports
+    /// also measure every uniform storage of the same trained state (the bytes axis).
+    #[arg(long, value_name = "STORAGE", default_value = "f16")]
+    pub storage: dnr_bake::storage::StorageMode,
 }
 
 /// One cell: a configuration's bake of a capture at a budget.
@@ -87,6 +93,12 @@ pub struct Cell {
     pub mse: f64,
     /// Asset bytes (0 for the reference, which writes none).
     pub asset_bytes: u64,
+    /// The asset's bytes by part (absent for the reference).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parts: Option<dnr_bake::storage::PartBytes>,
+    /// Each storage of the same trained state: bytes and held-out PSNR (`--storage` q8, q4
+    /// or auto measure f16, q8, q4 and the chosen mix; f16 only the asset).
+    pub storages: Vec<bytes::StorageCell>,
 }
 
 /// One capture's table.
@@ -147,11 +159,12 @@ pub fn main(a: &BakeArgs) -> Result<ExitCode> {
         write_suite(a, &tables)?;
     }
     let suite = write_suite(a, &tables)?;
-    println!("{}", markdown(&suite));
+    println!("{}", full_markdown(&suite));
     eprintln!(
-        "wrote {} and {}",
+        "wrote {}, {} and {}",
         a.out.join("bench_bake.json").display(),
-        a.out.join("bench_bake.png").display()
+        a.out.join("bench_bake.png").display(),
+        a.out.join("bench_bake_bytes.png").display()
     );
     Ok(ExitCode::SUCCESS)
 }
@@ -174,11 +187,19 @@ fn write_suite(a: &BakeArgs, tables: &[Table]) -> Result<Suite> {
     let png = plot::plot(&suite).context("drawing the plot")?;
     let p = a.out.join("bench_bake.png");
     write_atomic(&p, &png).with_context(|| format!("cannot write {}", p.display()))?;
+    let png = plot::plot_bytes(&suite).context("drawing the bytes plot")?;
+    let p = a.out.join("bench_bake_bytes.png");
+    write_atomic(&p, &png).with_context(|| format!("cannot write {}", p.display()))?;
     if let Some(md) = &a.markdown {
-        write_atomic(md, markdown(&suite).as_bytes())
+        write_atomic(md, full_markdown(&suite).as_bytes())
             .with_context(|| format!("cannot write {}", md.display()))?;
     }
     Ok(suite)
+}
+
+/// The PSNR tables, then the bytes section.
+fn full_markdown(s: &Suite) -> String {
+    format!("{}\n{}", markdown(s), bytes::markdown(s))
 }
 
 /// The short name of a capture run.
@@ -242,13 +263,13 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
                 limits: Default::default(),
                 write_f32: None,
                 write_unpruned: None,
-                storage: dnr_bake::storage::StorageMode::F16,
+                storage: a.storage,
                 storage_bound_db: dnr_bake::storage::DEFAULT_BOUND_DB,
                 write_f16: None,
                 input: Default::default(),
             };
             let s = bake(&cfg, &opts).with_context(|| format!("baking `{stem}` of {name}"))?;
-            table.cells.push(Cell {
+            let mut cell = Cell {
                 config: cname.clone(),
                 budget,
                 seconds: s.train_seconds,
@@ -257,7 +278,17 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
                 ssim: s.test_ssim,
                 mse: s.test_mse,
                 asset_bytes: s.asset_bytes,
-            });
+                parts: Some(bytes::read_parts(&output)?),
+                storages: Vec::new(),
+            };
+            let report_path = dir.join(format!("{stem}.json"));
+            let report: serde_json::Value = serde_json::from_slice(
+                &std::fs::read(&report_path)
+                    .with_context(|| format!("cannot read {}", report_path.display()))?,
+            )
+            .with_context(|| format!("{}: malformed report", report_path.display()))?;
+            cell.storages = bytes::storages(&report, &cell);
+            table.cells.push(cell);
             if budget == max_budget {
                 table.curves.push((cname.clone(), s.records.clone()));
             }

@@ -107,6 +107,8 @@ impl Peer<'_> {
                 ssim,
                 mse,
                 asset_bytes: 0,
+                parts: None,
+                storages: Vec::new(),
             },
             records,
         ))

@@ -29,6 +29,20 @@ const PANEL: (u32, u32) = (640, 420);
 
 /// The suite's plot as PNG bytes.
 pub fn plot(s: &Suite) -> Result<Vec<u8>> {
+    draw_panels(s, panel)
+}
+
+/// The bytes plot as PNG bytes: a panel per capture, held-out PSNR against asset bytes (log
+/// axis), a dot per storage of each bake (labelled with the storage) coloured by
+/// configuration.
+pub fn plot_bytes(s: &Suite) -> Result<Vec<u8>> {
+    draw_panels(s, bytes_panel)
+}
+
+type PanelFn = fn(&Table, &Area, &[String]) -> Result<(), Box<dyn std::error::Error>>;
+
+/// One panel per capture (three to a row), drawn by `draw`, encoded as PNG.
+fn draw_panels(s: &Suite, draw: PanelFn) -> Result<Vec<u8>> {
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     let font_ok = *REGISTERED.get_or_init(|| {
         plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).is_ok()
@@ -55,7 +69,7 @@ pub fn plot(s: &Suite) -> Result<Vec<u8>> {
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let panels = root.split_evenly((rows, cols));
         for (t, area) in s.tables.iter().zip(panels.iter()) {
-            panel(t, area, &configs).map_err(|e| err(&e))?;
+            draw(t, area, &configs).map_err(|e| err(&e))?;
         }
         root.present().map_err(|e| err(&e))?;
     }
@@ -67,6 +81,88 @@ pub fn plot(s: &Suite) -> Result<Vec<u8>> {
             .context("encoding the plot")?;
     }
     Ok(png)
+}
+
+fn bytes_panel(
+    t: &Table,
+    area: &Area,
+    configs: &[String],
+) -> Result<(), Box<dyn std::error::Error>> {
+    let points: Vec<(&str, &str, f64, f64)> = t
+        .cells
+        .iter()
+        .flat_map(|c| {
+            c.storages
+                .iter()
+                .map(move |v| (c.config.as_str(), v.name.as_str(), v.bytes as f64, v.psnr))
+        })
+        .filter(|(_, _, b, p)| *b > 0.0 && p.is_finite())
+        .collect();
+    let (b_lo, b_hi, p_lo, p_hi) = points.iter().fold(
+        (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ),
+        |(a, b, c, d), &(_, _, x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
+    );
+    let (x_lo, x_hi, y_lo, y_hi) = if b_lo.is_finite() {
+        (
+            b_lo / 1.5,
+            b_hi * 1.5,
+            (p_lo - 1.0).floor(),
+            (p_hi + 1.0).ceil(),
+        )
+    } else {
+        (1e3, 1e7, 0.0, 40.0)
+    };
+    let mut chart = ChartBuilder::on(area)
+        .caption(format!("{} (bytes)", t.name), ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d((x_lo..x_hi).log_scale(), y_lo..y_hi)?;
+    chart
+        .configure_mesh()
+        .x_desc("asset MB (log)")
+        .x_label_formatter(&|b| format!("{:.2}", b / 1e6))
+        .y_desc("held-out PSNR (dB)")
+        .label_style(("sans-serif", 12))
+        .draw()?;
+    for (i, name) in configs.iter().enumerate() {
+        let colour = COLOURS[i % COLOURS.len()];
+        let mine: Vec<_> = points.iter().filter(|p| p.0 == name).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(
+                mine.iter()
+                    .map(|&&(_, _, b, p)| Circle::new((b, p), 5, colour.filled())),
+            )?
+            .label(name.clone())
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+        // Labels beside the dots; `chosen` only when it is not one of the uniform storages.
+        let labelled = mine.iter().filter(|&&&(_, s, b, p)| {
+            s != "chosen"
+                || !mine
+                    .iter()
+                    .any(|&&(_, o, ob, op)| o != "chosen" && ob == b && op == p)
+        });
+        chart.draw_series(labelled.map(|&&(_, s, b, p)| {
+            EmptyElement::at((b, p))
+                + Text::new(s.to_string(), (7, -14), ("sans-serif", 11).into_font())
+        }))?;
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .label_font(("sans-serif", 12))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
 }
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
@@ -185,6 +281,16 @@ mod tests {
                         ssim: 0.9,
                         mse: 10.0,
                         asset_bytes: 1,
+                        parts: None,
+                        storages: ["f16", "q8", "q4"]
+                            .iter()
+                            .enumerate()
+                            .map(|(i, n)| super::super::bytes::StorageCell {
+                                name: (*n).into(),
+                                bytes: 4_000_000 >> i,
+                                psnr: 30.0 - i as f64 + b / 100.0,
+                            })
+                            .collect(),
                     })
                 })
                 .collect(),
@@ -208,6 +314,12 @@ mod tests {
             summary: Vec::new(),
         };
         let png = plot(&s).unwrap();
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (3 * PANEL.0, 2 * PANEL.1));
+        let has = |c: RGBColor| img.pixels().any(|p| p.0 == [c.0, c.1, c.2]);
+        assert!(has(COLOURS[0]) && has(COLOURS[1]));
+        // The bytes plot beside it: same panels, a dot per storage.
+        let png = plot_bytes(&s).unwrap();
         let img = image::load_from_memory(&png).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (3 * PANEL.0, 2 * PANEL.1));
         let has = |c: RGBColor| img.pixels().any(|p| p.0 == [c.0, c.1, c.2]);

@@ -157,6 +157,8 @@ mod tests {
             ssim: 0.9,
             mse: 50.0,
             asset_bytes: 1,
+            parts: None,
+            storages: Vec::new(),
         }
     }
 
