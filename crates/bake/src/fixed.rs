@@ -4,6 +4,7 @@
 use std::time::Instant;
 
 use crate::pipeline::{self, BakeError, BakeOptions, ExportParts, Outcome, Progress, Summary};
+use crate::storage::StorageMode;
 use crate::train::checkpoint::{self, Checkpoint};
 use crate::train::config::TrainConfig;
 use crate::train::{self, Checkpointing, RunState, TrainError, Trainer};
@@ -47,7 +48,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
 
     let progress = Progress::new(opts.progress, cfg);
     // Quantised storage: the last part of training runs through the rounding it will get.
-    let qat = opts.storage.qat_target(trainer.pyr.levels.len());
+    let mut qat = opts.storage.qat_target(trainer.pyr.levels.len());
     let until = if qat.is_some() {
         train::quantise::QAT_START
     } else {
@@ -64,6 +65,18 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         |t, secs| progress.on_step(t, secs),
         |r| progress.on_record(r),
     )?;
+    // `--storage auto` chooses now, on the unquantised state, and fine-tunes toward that.
+    let mut storage_choice = None;
+    if qat.is_some() && opts.storage == StorageMode::Auto {
+        let net = trainer.export_net();
+        let choice = crate::storage::choose_auto(
+            &loaded,
+            &ExportParts::of(&trainer, &net),
+            opts.storage_bound_db,
+        )?;
+        qat = Some(crate::storage::qat_target_of(&choice.storage)).filter(|t| !t.is_identity());
+        storage_choice = Some(choice);
+    }
     if qat.is_some() {
         trainer.set_qat(qat.clone());
         train::run(
@@ -87,6 +100,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         state,
         auto: None,
         qat,
+        storage_choice,
     };
     pipeline::finish(&loaded, &parts, outcome, opts, t_start)
 }

@@ -50,8 +50,8 @@ impl std::str::FromStr for StorageMode {
 
 impl StorageMode {
     /// What quantisation-aware fine-tuning imitates for a pyramid of `levels` levels: the
-    /// encoding itself, and for auto the smallest it may choose (q4 levels, `int8` weights),
-    /// so whatever auto keeps was trained at least as coarsely.
+    /// encoding itself. For auto this is only a placeholder (q4 levels, `int8` weights): the
+    /// bakes replace it with [`qat_target_of`] auto's choice at the start of the fine-tune.
     pub fn qat_target(self, levels: usize) -> Option<QatTarget> {
         let bits = match self {
             StorageMode::F16 => return None,
@@ -235,11 +235,24 @@ pub struct StorageReport {
     pub qat: Option<QatTarget>,
     /// Auto's trials in order (empty for the fixed encodings).
     pub trials: Vec<Trial>,
+    /// The state auto's trial costs are measured against (auto only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_on: Option<MeasuredOn>,
     /// With quantised storage, the same trained state in every uniform storage and the
     /// chosen one: bytes by part, validation and held-out test PSNR (empty for f16).
     pub variants: Vec<Variant>,
     /// Seconds spent choosing and measuring.
     pub seconds: f64,
+}
+
+/// The state auto's trials were measured on.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct MeasuredOn {
+    /// When: at the start of the fine-tune, or at the end of training (no fine-tune ran).
+    pub when: String,
+    /// Its validation PSNR (dB) stored as f16.
+    pub val_psnr: f64,
 }
 
 /// One storage of the same trained state, measured.
@@ -258,14 +271,107 @@ pub struct Variant {
     pub test_psnr: f64,
 }
 
-/// Chooses the storage for `mode`: the fixed encodings as asked, auto by measurement. Also
-/// measures every uniform storage of the same state for the report.
+/// Auto's choice, measured on one state: for each level (finest first) and then the weights,
+/// the smallest encoding whose validation cost against all-f16 storage of that state, with
+/// the choices before it included, stays under `bound_db`.
+#[derive(Clone, Debug)]
+pub struct AutoChoice {
+    /// The storage chosen.
+    pub storage: Storage,
+    /// Every trial in order.
+    pub trials: Vec<Trial>,
+    /// Validation PSNR (dB) of the state stored as f16: what the costs are measured against.
+    pub base_val_psnr: f64,
+}
+
+/// Measures auto's trials on `parts` (see [`AutoChoice`]). Run at the start of the
+/// quantisation-aware fine-tune, the costs are those of the unquantised state, so the bound
+/// holds against what an f16 bake would write; the fine-tune then imitates what was chosen.
+pub fn choose_auto(
+    loaded: &Loaded,
+    parts: &ExportParts,
+    bound_db: f64,
+) -> Result<AutoChoice, BakeError> {
+    let n = parts.pyr.levels.len();
+    let val: Vec<crate::capture::Frame> = loaded
+        .val_idx
+        .iter()
+        .filter_map(|&i| loaded.capture.train.get(i).cloned())
+        .collect();
+    let f16 = Storage::uniform(LevelStorage::Exr, n);
+    let mut trials = Vec::new();
+    let base = measure(loaded, parts, &f16, &val)?;
+    let mut cur = f16.clone();
+    // Finest level first: it holds most of the bytes.
+    for li in 0..n {
+        let l = &parts.pyr.levels[li];
+        for enc in [LevelStorage::Q4, LevelStorage::Q8] {
+            let mut trial = cur.clone();
+            trial.levels[li] = enc;
+            let m = measure(loaded, parts, &trial, &val)?;
+            let cost = base.psnr - m.psnr;
+            // Without validation views nothing can be measured: keep f16.
+            let ok = cost.is_finite() && cost <= bound_db;
+            trials.push(Trial {
+                part: format!("level {li} ({}x{})", l.width, l.height),
+                encoding: enc.name().into(),
+                bytes: m.bytes.levels.get(li).copied().unwrap_or(0),
+                f16_bytes: base.bytes.levels.get(li).copied().unwrap_or(0),
+                cost_db: cost,
+                chosen: ok,
+            });
+            if ok {
+                cur = trial;
+                break;
+            }
+        }
+    }
+    if base.bytes.weights > 0 {
+        let trial = Storage {
+            weights: DType::Int8,
+            ..cur.clone()
+        };
+        let m = measure(loaded, parts, &trial, &val)?;
+        let cost = base.psnr - m.psnr;
+        let ok = cost.is_finite() && cost <= bound_db;
+        trials.push(Trial {
+            part: "weights".into(),
+            encoding: "int8".into(),
+            bytes: m.bytes.weights,
+            f16_bytes: base.bytes.weights,
+            cost_db: cost,
+            chosen: ok,
+        });
+        if ok {
+            cur = trial;
+        }
+    }
+    Ok(AutoChoice {
+        storage: cur,
+        trials,
+        base_val_psnr: base.psnr,
+    })
+}
+
+/// What the fine-tune imitates for a chosen storage: each quantised level's bits, and `int8`
+/// weights when chosen.
+pub fn qat_target_of(storage: &Storage) -> QatTarget {
+    QatTarget {
+        level_bits: storage.levels.iter().map(|l| l.bits()).collect(),
+        int8_weights: storage.weights == DType::Int8,
+    }
+}
+
+/// Chooses the storage for `mode`: the fixed encodings as asked, auto by measurement (`pre`:
+/// auto's choice already made at the start of the fine-tune). Also measures every uniform
+/// storage of the same state for the report.
 pub fn choose(
     loaded: &Loaded,
     parts: &ExportParts,
     mode: StorageMode,
     bound_db: f64,
     qat: Option<QatTarget>,
+    pre: Option<AutoChoice>,
 ) -> Result<(Storage, StorageReport), BakeError> {
     let t0 = std::time::Instant::now();
     let n = parts.pyr.levels.len();
@@ -276,58 +382,33 @@ pub fn choose(
         .collect();
     let f16 = Storage::uniform(LevelStorage::Exr, n);
     let mut trials = Vec::new();
+    let mut measured_on = None;
     let chosen = match mode {
         StorageMode::F16 => f16.clone(),
         StorageMode::Q8 => Storage::uniform(LevelStorage::Q8, n),
         StorageMode::Q4 => Storage::uniform(LevelStorage::Q4, n),
         StorageMode::Auto => {
-            let base = measure(loaded, parts, &f16, &val)?;
-            let mut cur = f16.clone();
-            // Finest level first: it holds most of the bytes.
-            for li in 0..n {
-                let l = &parts.pyr.levels[li];
-                for enc in [LevelStorage::Q4, LevelStorage::Q8] {
-                    let mut trial = cur.clone();
-                    trial.levels[li] = enc;
-                    let m = measure(loaded, parts, &trial, &val)?;
-                    let cost = base.psnr - m.psnr;
-                    // Without validation views nothing can be measured: keep f16.
-                    let ok = cost.is_finite() && cost <= bound_db;
-                    trials.push(Trial {
-                        part: format!("level {li} ({}x{})", l.width, l.height),
-                        encoding: enc.name().into(),
-                        bytes: m.bytes.levels.get(li).copied().unwrap_or(0),
-                        f16_bytes: base.bytes.levels.get(li).copied().unwrap_or(0),
-                        cost_db: cost,
-                        chosen: ok,
+            // Chosen at the start of the fine-tune, on the unquantised state (unless the
+            // texture changed shape since, which the phases before the fine-tune rule out).
+            let p = match pre.filter(|p| p.storage.levels.len() == n) {
+                Some(p) => {
+                    measured_on = Some(MeasuredOn {
+                        when: "start of the fine-tune (unquantised)".into(),
+                        val_psnr: p.base_val_psnr,
                     });
-                    if ok {
-                        cur = trial;
-                        break;
-                    }
+                    p
                 }
-            }
-            if base.bytes.weights > 0 {
-                let trial = Storage {
-                    weights: DType::Int8,
-                    ..cur.clone()
-                };
-                let m = measure(loaded, parts, &trial, &val)?;
-                let cost = base.psnr - m.psnr;
-                let ok = cost.is_finite() && cost <= bound_db;
-                trials.push(Trial {
-                    part: "weights".into(),
-                    encoding: "int8".into(),
-                    bytes: m.bytes.weights,
-                    f16_bytes: base.bytes.weights,
-                    cost_db: cost,
-                    chosen: ok,
-                });
-                if ok {
-                    cur = trial;
+                None => {
+                    let p = choose_auto(loaded, parts, bound_db)?;
+                    measured_on = Some(MeasuredOn {
+                        when: "end of training".into(),
+                        val_psnr: p.base_val_psnr,
+                    });
+                    p
                 }
-            }
-            cur
+            };
+            trials = p.trials;
+            p.storage
         }
     };
     let mut variants = Vec::new();
@@ -371,6 +452,7 @@ pub fn choose(
         weights: chosen.weights.to_string(),
         qat,
         trials,
+        measured_on,
         variants,
         seconds: t0.elapsed().as_secs_f64(),
     };
@@ -383,6 +465,12 @@ pub fn describe(r: &StorageReport) -> Vec<String> {
         "storage {:?} (bound {} dB): {}",
         r.mode, r.bound_db, r.chosen
     )];
+    if let Some(m) = &r.measured_on {
+        out.push(format!(
+            "  costs measured at the {}, against {:.2} dB on validation as f16",
+            m.when, m.val_psnr
+        ));
+    }
     for t in &r.trials {
         out.push(format!(
             "  {} as {}: {} bytes (f16 {}), costs {:.3} dB{}",

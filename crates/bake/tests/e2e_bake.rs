@@ -426,15 +426,42 @@ fn auto_preset_with_auto_storage_fine_tunes_through_the_rounding_and_keeps_the_b
     assert!(v.issues.is_empty(), "{:#?}", v.issues);
     let s = &r["storage"];
     assert_eq!(s["mode"], "auto");
-    // The network behind the highlights stays, so the last part of training ran through the
-    // rounding auto may choose at its smallest (q4 levels, int8 weights).
+    // The network behind the highlights stays, so auto chose when the fine-tune started, on
+    // the unquantised state, and the fine-tune ran through the rounding it chose.
     assert_eq!(
         r["auto"]["textureOnly"].as_bool(),
         Some(false),
         "{}",
         r["auto"]
     );
-    assert_eq!(s["qat"]["int8Weights"], true, "{s}");
+    let when = s["measuredOn"]["when"].as_str().unwrap_or("");
+    assert!(when.starts_with("start of the fine-tune"), "{s}");
+    let chosen_int8 = s["weights"] == "int8";
+    let chosen_bits: Vec<Option<u64>> = s["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| match l.as_str() {
+            Some("q8") => Some(8),
+            Some("q4") => Some(4),
+            _ => None,
+        })
+        .collect();
+    if s["qat"].is_null() {
+        assert!(
+            !chosen_int8 && chosen_bits.iter().all(Option::is_none),
+            "{s}"
+        );
+    } else {
+        let qat_bits: Vec<Option<u64>> = s["qat"]["levelBits"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(serde_json::Value::as_u64)
+            .collect();
+        assert_eq!(qat_bits, chosen_bits, "{s}");
+        assert_eq!(s["qat"]["int8Weights"] == true, chosen_int8, "{s}");
+    }
     let variant = |name: &str| {
         s["variants"]
             .as_array()

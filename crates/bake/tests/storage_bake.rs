@@ -221,6 +221,28 @@ fn auto_storage_keeps_only_what_costs_less_than_the_bound() {
     assert_eq!(names, stored);
     let int8 = weights.iter().any(|(_, d)| *d == DType::Int8);
     assert_eq!(storage["weights"] == "int8", int8, "{storage}");
+    // The choice was made on the unquantised state when the fine-tune started, and the
+    // fine-tune imitated exactly that choice.
+    let when = storage["measuredOn"]["when"].as_str().unwrap_or("");
+    assert!(when.starts_with("start of the fine-tune"), "{storage}");
+    let qat = &storage["qat"];
+    if qat.is_null() {
+        assert!(stored.iter().all(|s| *s == "f16") && !int8, "{storage}");
+    } else {
+        let bits: Vec<&str> = qat["levelBits"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| match b.as_u64() {
+                None => "f16",
+                Some(8) => "q8",
+                Some(4) => "q4",
+                Some(_) => "?",
+            })
+            .collect();
+        assert_eq!(bits, stored, "{storage}");
+        assert_eq!(qat["int8Weights"] == true, int8, "{storage}");
+    }
     let chosen = variant(&report, "chosen");
     assert!((chosen["testPsnr"].as_f64().unwrap() - summary.test_psnr).abs() < 1e-9);
 }

@@ -258,14 +258,16 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     )?;
 
     // Quantised storage: the last part of training runs through the rounding it will get.
-    let qat = opts.storage.qat_target(tr.pyr.levels.len());
+    let mut qat = opts.storage.qat_target(tr.pyr.levels.len());
+    let mut storage_choice = None;
     // A network that does not beat the classical texture yet may still be learning (few
     // steps on a slow or loaded machine): it trains on to the end, unpruned, and is compared
     // again there; only then may the texture alone win.
     let behind = trained_psnr - classical_psnr < PRUNE_DB;
     let end_psnr = if behind {
-        phases.train_after_pruning =
-            train_to_end(&mut tr, &mut state, qat.as_ref(), &loaded, &progress)?;
+        let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
+        phases.train_after_pruning = secs;
+        storage_choice = choice;
         train::run::mean_psnr(&tr, loaded.val())?
     } else {
         trained_psnr
@@ -309,8 +311,9 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         let pruning = prune::prune(&mut tr, loaded.val(), PRUNE_DB)?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
-        phases.train_after_pruning =
-            train_to_end(&mut tr, &mut state, qat.as_ref(), &loaded, &progress)?;
+        let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
+        phases.train_after_pruning = secs;
+        storage_choice = choice;
         let (p, n) = prune::strip_channels(&tr.pyr, &tr.export_net(), &pruning.channels);
         (p, n, tr.sh_layer(), tr.out_ch, Some(pruning))
     };
@@ -360,6 +363,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         state,
         auto: Some(&report),
         qat: if texture_only { None } else { qat },
+        storage_choice: if texture_only { None } else { storage_choice },
     };
     pipeline::finish(&loaded, &parts, outcome, opts, t_start)
 }
@@ -507,19 +511,31 @@ pub fn train_phase(
 /// [`train_phase`] to the end of the budget; with quantised storage (`qat`), the part from
 /// [`train::quantise::QAT_START`] on reads the texture and the weights rounded as they will be
 /// stored. Returns the seconds trained.
+/// With `--storage auto`, the storage is chosen at that point, on the unquantised state, and
+/// the fine-tune imitates what was chosen (`qat` is updated, the choice returned).
 fn train_to_end(
     tr: &mut Trainer,
     state: &mut RunState,
-    qat: Option<&train::quantise::QatTarget>,
+    qat: &mut Option<train::quantise::QatTarget>,
+    opts: &BakeOptions,
     loaded: &Loaded,
     progress: &Progress,
-) -> Result<f64, BakeError> {
-    let Some(q) = qat else {
-        return train_phase(tr, state, 1.0, loaded, progress);
-    };
+) -> Result<(f64, Option<crate::storage::AutoChoice>), BakeError> {
+    if qat.is_none() {
+        return Ok((train_phase(tr, state, 1.0, loaded, progress)?, None));
+    }
     let before = train_phase(tr, state, train::quantise::QAT_START, loaded, progress)?;
-    tr.set_qat(Some(q.clone()));
-    Ok(before + train_phase(tr, state, 1.0, loaded, progress)?)
+    let mut choice = None;
+    if opts.storage == crate::storage::StorageMode::Auto {
+        let net = tr.export_net();
+        let c =
+            crate::storage::choose_auto(loaded, &ExportParts::of(tr, &net), opts.storage_bound_db)?;
+        *qat = Some(crate::storage::qat_target_of(&c.storage)).filter(|t| !t.is_identity());
+        choice = Some(c);
+    }
+    tr.set_qat(qat.clone());
+    let after = train_phase(tr, state, 1.0, loaded, progress)?;
+    Ok((before + after, choice))
 }
 
 /// The report line of the texture-resolution trials.

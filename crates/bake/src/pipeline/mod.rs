@@ -413,6 +413,8 @@ pub struct Outcome<'a, A: Serialize> {
     pub auto: Option<&'a A>,
     /// What quantisation-aware fine-tuning imitated, if it ran.
     pub qat: Option<crate::train::quantise::QatTarget>,
+    /// `--storage auto`'s choice, made at the start of the fine-tune, if it ran.
+    pub storage_choice: Option<crate::storage::AutoChoice>,
 }
 
 /// Writes the asset (and the f32 copy if asked), removes the checkpoint, evaluates the asset
@@ -440,6 +442,7 @@ pub fn finish<A: Serialize>(
         opts.storage,
         opts.storage_bound_db,
         outcome.qat.clone(),
+        outcome.storage_choice.clone(),
     )?;
     if opts.progress {
         for line in crate::storage::describe(&storage_report) {
