@@ -284,6 +284,15 @@ pub struct AutoChoice {
     pub base_val_psnr: f64,
 }
 
+/// Auto's validation views (training frames held out from fitting).
+fn validation_frames(loaded: &Loaded) -> Vec<crate::capture::Frame> {
+    loaded
+        .val_idx
+        .iter()
+        .filter_map(|&i| loaded.capture.train.get(i).cloned())
+        .collect()
+}
+
 /// Measures auto's trials on `parts` (see [`AutoChoice`]). Run at the start of the
 /// quantisation-aware fine-tune, the costs are those of the unquantised state, so the bound
 /// holds against what an f16 bake would write; the fine-tune then imitates what was chosen.
@@ -293,11 +302,7 @@ pub fn choose_auto(
     bound_db: f64,
 ) -> Result<AutoChoice, BakeError> {
     let n = parts.pyr.levels.len();
-    let val: Vec<crate::capture::Frame> = loaded
-        .val_idx
-        .iter()
-        .filter_map(|&i| loaded.capture.train.get(i).cloned())
-        .collect();
+    let val = validation_frames(loaded);
     let f16 = Storage::uniform(LevelStorage::Exr, n);
     let mut trials = Vec::new();
     let base = measure(loaded, parts, &f16, &val)?;
@@ -375,11 +380,7 @@ pub fn choose(
 ) -> Result<(Storage, StorageReport), BakeError> {
     let t0 = std::time::Instant::now();
     let n = parts.pyr.levels.len();
-    let val: Vec<crate::capture::Frame> = loaded
-        .val_idx
-        .iter()
-        .filter_map(|&i| loaded.capture.train.get(i).cloned())
-        .collect();
+    let val = validation_frames(loaded);
     let f16 = Storage::uniform(LevelStorage::Exr, n);
     let mut trials = Vec::new();
     let mut measured_on = None;
