@@ -141,10 +141,13 @@ pub fn check(
     }
 
     let mut views = score_all(capture, &capture.mesh);
-    if decide_space {
-        let t = capture
-            .applied_transform
-            .expect("mesh space auto only with applied_transform");
+    // Without an `applied_transform` there is only one placement: the poses' coordinates
+    // (the loader settles that case already; a capture built by hand may not have).
+    if decide_space && capture.applied_transform.is_none() {
+        capture.mesh_space = MeshSpace::Poses;
+        report.mesh_space = MeshSpace::Poses;
+    }
+    if let (true, Some(t)) = (decide_space, capture.applied_transform) {
         let mut placed = capture.mesh.clone();
         place_mesh(&mut placed, t);
         let other = score_all(capture, &placed);
