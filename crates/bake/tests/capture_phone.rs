@@ -93,20 +93,8 @@ fn fast_cfg() -> TrainConfig {
 
 fn bake_opts(capture: &Path, out: &Path) -> BakeOptions {
     BakeOptions {
-        capture: capture.to_path_buf(),
-        output: out.to_path_buf(),
-        mesh: None,
         report: Some(out.with_extension("json")),
-        resume: false,
-        progress: false,
-        checkpoint_every: 1e9,
-        limits: Default::default(),
-        write_f32: None,
-        write_unpruned: None,
-        storage: dnr_bake::storage::StorageMode::F16,
-        storage_bound_db: dnr_bake::storage::DEFAULT_BOUND_DB,
-        write_f16: None,
-        input: Default::default(),
+        ..BakeOptions::new(capture, out)
     }
 }
 

@@ -253,8 +253,14 @@ fn sigkill_and_resume_reaches_the_straight_result() {
 #[path = "capture_common/mod.rs"]
 mod capture_common;
 
-/// Runs an auto bake of `capture` and returns its report.
-fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
+/// Runs an auto bake of `capture` for `budget` seconds in `dir` with `extra` arguments;
+/// returns the asset's path and the report.
+fn bake_auto(
+    capture: &Path,
+    budget: &str,
+    dir: &Path,
+    extra: &[&str],
+) -> (std::path::PathBuf, serde_json::Value) {
     let out = dir.join("auto.glb");
     let report = dir.join("auto.json");
     let o = Command::new(bin())
@@ -269,17 +275,24 @@ fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
             "--threads",
             "2",
         ])
+        .args(extra)
         .arg("--report")
         .arg(&report)
         .output()
         .expect("run dnr-bake");
     assert!(
         o.status.success(),
-        "dnr-bake --preset auto failed: {}",
+        "dnr-bake --preset auto {extra:?} failed: {}",
         String::from_utf8_lossy(&o.stderr)
     );
     let r: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&report).unwrap()).expect("report JSON");
+    (out, r)
+}
+
+/// Runs an auto bake of `capture` and returns its report.
+fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
+    let (out, r) = bake_auto(capture, budget, dir, &[]);
     // What the report says matches the asset: SH extension data only when kept.
     let asset = dnr_format::asset::read_asset(&out).expect("the asset reads back");
     let ext = asset.extension.expect("the extension");
@@ -395,33 +408,12 @@ fn held_out_error_never_grows_with_the_default_presets_time_budget() {
 fn auto_preset_with_auto_storage_fine_tunes_through_the_rounding_and_keeps_the_bound() {
     let _turn = timed();
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("auto-q.glb");
-    let report = dir.path().join("auto-q.json");
-    let o = Command::new(bin())
-        .arg(capture_common::sample_capture())
-        .arg("-o")
-        .arg(&out)
-        .args([
-            "--preset",
-            "auto",
-            "--time-budget",
-            "15",
-            "--threads",
-            "2",
-            "--storage",
-            "auto",
-        ])
-        .arg("--report")
-        .arg(&report)
-        .output()
-        .expect("run dnr-bake");
-    assert!(
-        o.status.success(),
-        "dnr-bake --storage auto failed: {}",
-        String::from_utf8_lossy(&o.stderr)
+    let (out, r) = bake_auto(
+        &capture_common::sample_capture(),
+        "15",
+        dir.path(),
+        &["--storage", "auto"],
     );
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&report).unwrap()).expect("report JSON");
     let v = dnr_format::validate_file(&out, &dnr_format::Limits::default()).unwrap();
     assert!(v.issues.is_empty(), "{:#?}", v.issues);
     let s = &r["storage"];

@@ -31,20 +31,11 @@ fn cfg() -> TrainConfig {
 
 fn opts(out: &Path, storage: StorageMode, bound_db: f64) -> BakeOptions {
     BakeOptions {
-        capture: capture_common::sample_capture(),
-        output: out.to_path_buf(),
-        mesh: None,
         report: Some(out.with_extension("json")),
-        resume: false,
-        progress: false,
-        checkpoint_every: 1e9,
-        limits: Default::default(),
-        write_f32: None,
-        write_unpruned: None,
         storage,
         storage_bound_db: bound_db,
         write_f16: Some(out.with_extension("f16.glb")),
-        input: Default::default(),
+        ..BakeOptions::new(capture_common::sample_capture(), out)
     }
 }
 

@@ -31,32 +31,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 height: l.height,
                 channels: t.channels,
             };
-            if let Some(q) = &l.quantization {
-                let level = dnr_format::quant::decode_png_level(bytes, expect, q, &limits)
-                    .map_err(|p| p.error)?;
-                png_levels.push(json!({
-                    "texture": ti,
-                    "level": li,
-                    "bufferView": l.buffer_view,
-                    "width": l.width,
-                    "height": l.height,
-                    "channels": t.channels,
-                    "bits": q.bits,
-                    "f32Bits": level.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                }));
-                continue;
-            }
-            let halves = decode_level_halves(bytes, expect, &limits).map_err(|p| p.error)?;
-            levels.push(json!({
+            // The fields every entry has; each storage adds its values.
+            let common = json!({
                 "texture": ti,
                 "level": li,
                 "bufferView": l.buffer_view,
                 "width": l.width,
                 "height": l.height,
                 "channels": t.channels,
-                "channelNames": (0..t.channels).map(|i| channel_name(i, t.channels)).collect::<Vec<_>>(),
-                "halfBits": halves.iter().map(|h| h.to_bits()).collect::<Vec<_>>(),
-            }));
+            });
+            if let Some(q) = &l.quantization {
+                let level = dnr_format::quant::decode_png_level(bytes, expect, q, &limits)
+                    .map_err(|p| p.error)?;
+                let mut e = common;
+                e["bits"] = json!(q.bits);
+                e["f32Bits"] = json!(level.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+                png_levels.push(e);
+                continue;
+            }
+            let halves = decode_level_halves(bytes, expect, &limits).map_err(|p| p.error)?;
+            let mut e = common;
+            e["channelNames"] = json!((0..t.channels)
+                .map(|i| channel_name(i, t.channels))
+                .collect::<Vec<_>>());
+            e["halfBits"] = json!(halves.iter().map(|h| h.to_bits()).collect::<Vec<_>>());
+            levels.push(e);
         }
     }
     println!(

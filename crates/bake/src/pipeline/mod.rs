@@ -56,6 +56,29 @@ pub struct BakeOptions {
     pub input: crate::capture::InputOptions,
 }
 
+impl BakeOptions {
+    /// A bake of `capture` into `output` with everything else off or at its default: no
+    /// report, no progress, no periodic checkpoints, no extra copies, f16 storage.
+    pub fn new(capture: impl Into<PathBuf>, output: impl Into<PathBuf>) -> Self {
+        BakeOptions {
+            capture: capture.into(),
+            output: output.into(),
+            mesh: None,
+            report: None,
+            resume: false,
+            progress: false,
+            checkpoint_every: f64::INFINITY,
+            limits: Default::default(),
+            write_f32: None,
+            write_unpruned: None,
+            storage: crate::storage::StorageMode::F16,
+            storage_bound_db: crate::storage::DEFAULT_BOUND_DB,
+            write_f16: None,
+            input: Default::default(),
+        }
+    }
+}
+
 /// Final figures of a bake.
 #[derive(Clone, Debug, Serialize)]
 #[serde(rename_all = "camelCase")]

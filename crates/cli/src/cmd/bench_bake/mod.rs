@@ -253,20 +253,11 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
                 output.display()
             );
             let opts = BakeOptions {
-                capture: capture.to_path_buf(),
-                output: output.clone(),
                 mesh: mesh.clone(),
                 report: Some(dir.join(format!("{stem}.json"))),
-                resume: false,
                 progress: true,
-                checkpoint_every: 1e9,
-                limits: Default::default(),
-                write_f32: None,
-                write_unpruned: None,
                 storage: a.storage,
-                storage_bound_db: dnr_bake::storage::DEFAULT_BOUND_DB,
-                write_f16: None,
-                input: Default::default(),
+                ..BakeOptions::new(capture, output.clone())
             };
             let s = bake(&cfg, &opts).with_context(|| format!("baking `{stem}` of {name}"))?;
             let mut cell = Cell {

@@ -155,6 +155,13 @@ fn bytes_panel(
                 + Text::new(s.to_string(), (7, -14), ("sans-serif", 11).into_font())
         }))?;
     }
+    legend(&mut chart)
+}
+
+/// The legend both plots draw: lower right, over a light box.
+fn legend<'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'a>, CT>,
+) -> Result<(), Box<dyn std::error::Error>> {
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::LowerRight)
@@ -234,14 +241,7 @@ fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::
             });
         chart.draw_series(dots)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::LowerRight)
-        .label_font(("sans-serif", 12))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()?;
-    Ok(())
+    legend(&mut chart)
 }
 
 #[cfg(test)]
