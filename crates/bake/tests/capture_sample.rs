@@ -52,3 +52,22 @@ fn sample_capture_loads() {
         assert!((b - a).cross(c - a).dot(a + b + c) > 0.0);
     }
 }
+
+/// A capture built or edited by hand may ask for the mesh space to be decided without an
+/// `applied_transform` to decide with: the check places the mesh in the poses' coordinates
+/// instead of failing.
+#[test]
+fn deciding_the_mesh_space_without_an_applied_transform_takes_the_poses() {
+    use dnr_bake::capture::alignment::{check, AlignmentOptions};
+    use dnr_bake::capture::MeshSpace;
+    let dir = std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../samples/capture"
+    ));
+    let mut cap = Capture::load(dir, &LoadOptions::default()).unwrap();
+    cap.applied_transform = None;
+    cap.mesh_space = MeshSpace::Auto;
+    let report = check(&mut cap, &AlignmentOptions::default()).unwrap();
+    assert_eq!(cap.mesh_space, MeshSpace::Poses);
+    assert_eq!(report.mesh_space, MeshSpace::Poses);
+}
