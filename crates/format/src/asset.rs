@@ -1297,10 +1297,36 @@ pub fn downsample_rgba8(
 
 /// Encodes RGBA8 pixels as PNG (deterministic).
 pub fn encode_png_rgba8(width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>> {
+    // Which row filter compresses best depends on the content: none for packed 4-bit
+    // levels (a nibble pair is not predicted by its neighbour's), per-row minimum entropy
+    // or adaptive for 8-bit levels and colour. Encoding is cheap next to baking; keep the
+    // smallest.
+    let mut best: Option<Vec<u8>> = None;
+    for filter in [
+        png::Filter::NoFilter,
+        png::Filter::Adaptive,
+        png::Filter::MinEntropy,
+    ] {
+        let out = encode_png_rgba8_with(width, height, rgba, filter)?;
+        if best.as_ref().is_none_or(|b| out.len() < b.len()) {
+            best = Some(out);
+        }
+    }
+    best.ok_or_else(|| Error::invalid("PNG encoding: no filter tried"))
+}
+
+fn encode_png_rgba8_with(
+    width: u32,
+    height: u32,
+    rgba: &[u8],
+    filter: png::Filter,
+) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     let mut enc = png::Encoder::new(&mut out, width, height);
     enc.set_color(png::ColorType::Rgba);
     enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::High);
+    enc.set_filter(filter);
     let err = |e: png::EncodingError| Error::invalid(format!("PNG encoding: {e}"));
     let mut writer = enc.write_header().map_err(err)?;
     writer.write_image_data(rgba).map_err(err)?;

@@ -17,6 +17,8 @@ use crate::exr_codec::{LevelExpect, TextureLevel};
 use crate::limits::Limits;
 use crate::model::Quantization;
 
+pub mod range;
+
 /// The MIME type of a quantised level.
 pub const PNG_MIME_TYPE: &str = "image/png";
 
@@ -85,44 +87,40 @@ pub fn quantization_problems(
     out
 }
 
-/// Per-channel `(scale, offset)` covering the level's range with `bits`-bit integers:
-/// `offset = min`, `scale = (max - min) / (2^bits - 1)`; a constant channel gets scale 1
-/// (every value then decodes to `offset` exactly).
+/// Per-channel `(scale, offset)` for `bits`-bit integers with the least squared rounding
+/// error: the range may leave out a channel's rare extreme values, which then decode to the
+/// range's ends ([`range`] says how it is searched; it is never worse than the full
+/// minimum-to-maximum range). A constant channel gets scale 1 (every value then decodes to
+/// `offset` exactly). A writer's choice, not the format's: readers only apply the formula.
 pub fn fit_parameters(level: &TextureLevel, bits: u32) -> (Vec<f32>, Vec<f32>) {
     fit_parameters_hwc(&level.data, level.channels as usize, bits)
 }
 
 /// [`fit_parameters`] of texel-interleaved values with `channels` channels.
 pub fn fit_parameters_hwc(data: &[f32], channels: usize, bits: u32) -> (Vec<f32>, Vec<f32>) {
-    let c = channels;
-    let mut lo = vec![f32::INFINITY; c];
-    let mut hi = vec![f32::NEG_INFINITY; c];
-    for texel in data.chunks_exact(c.max(1)) {
-        for (k, &v) in texel.iter().enumerate() {
-            lo[k] = lo[k].min(v);
-            hi[k] = hi[k].max(v);
-        }
-    }
-    let top = q_max(bits);
-    let mut scale = Vec::with_capacity(c);
-    let mut offset = Vec::with_capacity(c);
-    for k in 0..c {
-        let (l, h) = if lo[k] <= hi[k] {
-            (lo[k], hi[k])
-        } else {
-            (0.0, 0.0)
-        };
-        let s = (h - l) / top;
-        scale.push(if s.is_normal() && s > 0.0 { s } else { 1.0 });
-        offset.push(l);
-    }
-    (scale, offset)
+    range::fit(data, channels, q_max(bits))
 }
 
-/// The integer nearest to `(v - offset) / scale`, clamped to `0..=2^bits-1`.
+/// The integer nearest to `(v - offset) / scale` (halves away from zero), clamped to
+/// `0..=2^bits-1`; NaN gives 0.
 #[inline]
 pub fn quantise(v: f32, scale: f32, offset: f32, bits: u32) -> u8 {
-    ((v - offset) / scale).round().clamp(0.0, q_max(bits)) as u8
+    round_in_range((v - offset) / scale, q_max(bits)) as u8
+}
+
+/// `x.round().clamp(0.0, top)` for an integer `top` below 2^23, without the library call
+/// `round` compiles to on baseline x86-64 (the baker rounds every texel of every step).
+#[inline]
+pub(crate) fn round_in_range(x: f32, top: f32) -> f32 {
+    // Clamping first is the same (the bounds are integers); then the integer part is exact
+    // and so is the fraction `x - t`.
+    let x = x.clamp(0.0, top);
+    let t = x as u32 as f32;
+    if x - t >= 0.5 {
+        t + 1.0
+    } else {
+        t
+    }
 }
 
 /// Rounds every value of `level` through `bits`-bit storage with the given parameters
@@ -306,7 +304,7 @@ mod tests {
     }
 
     #[test]
-    fn round_trip_is_the_formula_within_half_a_step() {
+    fn round_trip_is_the_formula_within_half_a_step_or_clamped_to_the_range() {
         for (c, bits) in [(6, 8), (6, 4), (16, 4), (3, 8), (9, 4)] {
             let l = level(5, 3, c);
             let (q, png) = encode_png_level(&l, bits).unwrap();
@@ -320,8 +318,38 @@ mod tests {
             fake_quantise_level(&mut fake, &q.scale, &q.offset, bits);
             assert_eq!(back.data, fake.data, "c {c} bits {bits}");
             for (k, (a, b)) in l.data.iter().zip(&back.data).enumerate() {
-                let s = q.scale[k % c as usize];
-                assert!((a - b).abs() <= 0.5 * s * 1.0001, "{a} {b} {s}");
+                let (s, o) = (q.scale[k % c as usize], q.offset[k % c as usize]);
+                let end = o + s * q_max(bits);
+                // Inside the range: within half a step; outside: clamped to its nearer end.
+                let want = a.clamp(o, end);
+                assert!((want - b).abs() <= 0.5 * s * 1.0001, "{a} {b} {s} {o}");
+            }
+        }
+    }
+
+    #[test]
+    fn fast_rounding_is_the_library_rounding() {
+        let mut xs = vec![
+            -1.0,
+            -0.5,
+            0.0,
+            0.49999997,
+            0.5,
+            1.5,
+            2.5,
+            14.5,
+            14.999999,
+            15.5,
+            254.5,
+            255.49998,
+            1e9,
+            f32::NAN,
+        ];
+        xs.extend((0..100_000).map(|i| i as f32 * 0.002_717 - 10.0));
+        for top in [15.0, 255.0] {
+            for &x in &xs {
+                let want = x.round().clamp(0.0, top) as u8;
+                assert_eq!(round_in_range(x, top) as u8, want, "{x} top {top}");
             }
         }
     }
