@@ -59,11 +59,12 @@ pub fn fit(data: &[f32], channels: usize, top: f32) -> (Vec<f32>, Vec<f32>) {
         .collect();
     let best: Vec<(f32, f32)> = (0..c)
         .map(|k| {
-            if !(lo[k] < hi[k]) {
-                return full[k];
+            if lo[k] < hi[k] {
+                let hist = Histogram::new(&count[k * BINS..][..BINS], lo[k], hi[k]);
+                hist.search(lo[k], hi[k], top).unwrap_or(full[k])
+            } else {
+                full[k]
             }
-            let hist = Histogram::new(&count[k * BINS..][..BINS], lo[k], hi[k]);
-            hist.search(lo[k], hi[k], top).unwrap_or(full[k])
         })
         .collect();
     // The histogram's estimate picked `best`; the exact error decides against the full
