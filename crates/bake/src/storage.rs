@@ -66,7 +66,7 @@ impl StorageMode {
 }
 
 /// Bytes of an asset by part.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct PartBytes {
     /// Each texture level's file (EXR or PNG), finest first.

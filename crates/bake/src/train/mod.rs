@@ -85,16 +85,20 @@ pub struct Record {
     /// Optimisation steps done.
     pub step: u64,
     /// Training seconds (evaluation excluded).
+    #[serde(deserialize_with = "f64_or_nan")]
     pub seconds: f64,
     /// Mean photometric L1 over the steps since the last record.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub train_loss: f64,
     /// Mean held-out PSNR (dB), full frame on white.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub test_psnr: f64,
     /// Mean held-out MSE on [0, 255] over object pixels.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub test_mse: f64,
     /// Mean PSNR (dB) of the validation views (training views held out of training), the
     /// figure best-state selection reads; NaN without validation views.
-    #[serde(default = "nan")]
+    #[serde(default = "nan", deserialize_with = "f64_or_nan")]
     pub val_psnr: f64,
     /// Learning-rate factor of the schedule at this record.
     #[serde(default = "one")]
@@ -103,6 +107,12 @@ pub struct Record {
 
 fn nan() -> f64 {
     f64::NAN
+}
+
+/// Reads a number, or `null` as NaN: serde_json writes NaN (a figure not measured) as
+/// `null`, so saved reports and tables read back as they were.
+pub fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 fn one() -> f64 {

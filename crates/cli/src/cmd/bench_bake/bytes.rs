@@ -12,7 +12,7 @@ use serde::Serialize;
 use super::{Cell, Suite};
 
 /// One storage of a bake's trained state.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct StorageCell {
     /// `f16`, `q8`, `q4` or `chosen` (the written asset).
@@ -20,6 +20,7 @@ pub struct StorageCell {
     /// Asset bytes.
     pub bytes: u64,
     /// Held-out PSNR (dB).
+    #[serde(deserialize_with = "dnr_bake::train::f64_or_nan")]
     pub psnr: f64,
 }
 

@@ -23,7 +23,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use dnr_bake::bake::{bake, write_atomic, BakeOptions};
 use dnr_bake::train::Record;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 pub use configs::{config, BASELINES};
 pub use table::{markdown, summarise, Summary};
@@ -32,7 +32,7 @@ pub use table::{markdown, summarise, Summary};
 #[derive(clap::Args, Debug)]
 pub struct BakeArgs {
     /// Capture folders (one or a development set).
-    #[arg(required = true)]
+    #[arg(required_unless_present = "from_json")]
     pub captures: Vec<PathBuf>,
     /// Presets (or any configuration names) to run.
     #[arg(long, value_delimiter = ',', default_value = "auto")]
@@ -61,6 +61,16 @@ pub struct BakeArgs {
     /// The PyTorch reference script (dnr_torch.py).
     #[arg(long)]
     pub peer: Option<PathBuf>,
+    /// Run the reference at the same time as the first configuration's bake at each
+    /// budget, each on `--threads` threads (use 1 on two cores), so both see the same host;
+    /// without it they run one after the other.
+    #[arg(long, requires = "peer")]
+    pub side_by_side: bool,
+    /// Draw the tables and plots from saved runs instead of measuring: `bench_bake.json` of
+    /// a set or of one capture, several to join runs made apart (per capture, or on other
+    /// machines). Writes into `--out` and `--markdown` as a measuring run would.
+    #[arg(long, num_args = 1.., value_name = "JSON", conflicts_with = "captures")]
+    pub from_json: Vec<PathBuf>,
     /// U-Net width multiplier of the PyTorch reference (0.25: the CPU-sized 16..128).
     #[arg(long, default_value_t = 0.25)]
     pub peer_width: f64,
@@ -74,7 +84,7 @@ pub struct BakeArgs {
 }
 
 /// One cell: a configuration's bake of a capture at a budget.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct Cell {
     /// Configuration name (`pytorch` for the reference).
@@ -82,14 +92,18 @@ pub struct Cell {
     /// Budget in seconds.
     pub budget: f64,
     /// Training seconds the bake took.
+    #[serde(deserialize_with = "dnr_bake::train::f64_or_nan")]
     pub seconds: f64,
     /// Steps taken.
     pub steps: u64,
     /// Held-out PSNR (dB), full frame on white.
+    #[serde(deserialize_with = "dnr_bake::train::f64_or_nan")]
     pub psnr: f64,
     /// Held-out SSIM.
+    #[serde(deserialize_with = "dnr_bake::train::f64_or_nan")]
     pub ssim: f64,
     /// Held-out MSE on [0, 255] over object pixels.
+    #[serde(deserialize_with = "dnr_bake::train::f64_or_nan")]
     pub mse: f64,
     /// Asset bytes (0 for the reference, which writes none).
     pub asset_bytes: u64,
@@ -102,7 +116,7 @@ pub struct Cell {
 }
 
 /// One capture's table.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(rename_all = "camelCase")]
 pub struct Table {
     /// Capture folder.
@@ -132,6 +146,9 @@ pub struct Suite {
 
 /// Runs `dnr bench bake`.
 pub fn main(a: &BakeArgs) -> Result<ExitCode> {
+    if !a.from_json.is_empty() {
+        return from_json(a);
+    }
     if a.budgets.is_empty() || a.budgets.iter().any(|b| !(b.is_finite() && *b > 0.0)) {
         bail!("--budgets must be positive seconds, got {:?}", a.budgets);
     }
@@ -167,6 +184,50 @@ pub fn main(a: &BakeArgs) -> Result<ExitCode> {
         a.out.join("bench_bake_bytes.png").display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--from-json`: the tables of saved runs, joined, drawn and written as a run would.
+fn from_json(a: &BakeArgs) -> Result<ExitCode> {
+    let tables = read_tables(&a.from_json)?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let suite = write_suite(a, &tables)?;
+    println!("{}", full_markdown(&suite));
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The tables of saved `bench_bake.json` files (a set's or one capture's), in order; a
+/// capture in two files is an error.
+fn read_tables(paths: &[PathBuf]) -> Result<Vec<Table>> {
+    let mut tables: Vec<Table> = Vec::new();
+    for path in paths {
+        let text =
+            std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let v: serde_json::Value = serde_json::from_slice(&text)
+            .with_context(|| format!("{}: not JSON", path.display()))?;
+        // A set's file holds `tables`; one capture's file is a table itself.
+        let found: Vec<Table> = match v.get("tables") {
+            Some(t) => serde_json::from_value(t.clone()),
+            None => serde_json::from_value(v).map(|t| vec![t]),
+        }
+        .with_context(|| {
+            format!(
+                "{}: not a `dnr bench bake` table or set (bench_bake.json)",
+                path.display()
+            )
+        })?;
+        for t in found {
+            if tables.iter().any(|u| u.name == t.name) {
+                bail!(
+                    "{}: capture `{}` is in two of the files",
+                    path.display(),
+                    t.name
+                );
+            }
+            tables.push(t);
+        }
+    }
+    Ok(tables)
 }
 
 fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<()> {
@@ -240,7 +301,27 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
         cells: Vec::new(),
         curves: Vec::new(),
     };
-    for cname in names {
+    let peer = match (&a.torch, &a.peer) {
+        (Some(python), Some(script)) => Some(peer::Peer {
+            python,
+            script,
+            width: a.peer_width,
+            threads: a.threads,
+        }),
+        _ => None,
+    };
+    let run_peer = |p: &peer::Peer, budget: f64| {
+        eprintln!("dnr bench bake: {name}: PyTorch reference for {budget} s");
+        p.run(
+            capture,
+            mesh.as_deref(),
+            budget,
+            &dir.join(format!("pytorch-{budget}")),
+        )
+        .with_context(|| format!("PyTorch reference on {name} for {budget} s"))
+    };
+    let mut peer_cells = Vec::new();
+    for (i, cname) in names.iter().enumerate() {
         let mut cfg = config(cname)?;
         cfg.threads = a.threads;
         for &budget in &a.budgets {
@@ -255,11 +336,24 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
             let opts = BakeOptions {
                 mesh: mesh.clone(),
                 report: Some(dir.join(format!("{stem}.json"))),
-                progress: true,
+                progress: !a.side_by_side,
                 storage: a.storage,
                 ..BakeOptions::new(capture, output.clone())
             };
-            let s = bake(&cfg, &opts).with_context(|| format!("baking `{stem}` of {name}"))?;
+            let beside = peer.as_ref().filter(|_| a.side_by_side && i == 0);
+            let (baked, peer_run) = std::thread::scope(|sc| {
+                let handle = beside.map(|p| sc.spawn(|| run_peer(p, budget)));
+                let baked = bake(&cfg, &opts);
+                let peer_run = handle.map(|h| {
+                    h.join()
+                        .unwrap_or_else(|_| Err(anyhow::anyhow!("the reference's thread panicked")))
+                });
+                (baked, peer_run)
+            });
+            if let Some(r) = peer_run {
+                peer_cells.push((budget, r?));
+            }
+            let s = baked.with_context(|| format!("baking `{stem}` of {name}"))?;
             let mut cell = Cell {
                 config: cname.clone(),
                 budget,
@@ -285,35 +379,130 @@ fn run_capture(a: &BakeArgs, capture: &Path, names: &[String]) -> Result<Table> 
             }
         }
     }
-    if let (Some(py), Some(script)) = (&a.torch, &a.peer) {
-        let p = peer::Peer {
-            python: py,
-            script,
-            width: a.peer_width,
-            threads: a.threads,
-        };
+    if let Some(p) = peer.as_ref().filter(|_| !a.side_by_side) {
         for &budget in &a.budgets {
-            eprintln!("dnr bench bake: {name}: PyTorch reference for {budget} s");
-            let (cell, records) = p
-                .run(
-                    capture,
-                    mesh.as_deref(),
-                    budget,
-                    &dir.join(format!("pytorch-{budget}")),
-                )
-                .with_context(|| format!("PyTorch reference on {name} for {budget} s"))?;
-            table.cells.push(cell);
-            if budget == max_budget {
-                table.curves.push(("pytorch".into(), records));
-            }
+            peer_cells.push((budget, run_peer(p, budget)?));
+        }
+    }
+    for (budget, (cell, records)) in peer_cells {
+        table.cells.push(cell);
+        if budget == max_budget {
+            table.curves.push(("pytorch".into(), records));
         }
     }
     Ok(table)
 }
 
 #[cfg(test)]
+pub(super) mod testing {
+    use super::{Cell, Table};
+    use dnr_bake::train::Record;
+
+    /// A held-out record at `seconds` with `psnr`.
+    pub fn rec(seconds: f64, psnr: f64) -> Record {
+        Record {
+            step: 1,
+            seconds,
+            train_loss: 0.1,
+            test_psnr: psnr,
+            test_mse: 10.0,
+            val_psnr: f64::NAN,
+            lr_factor: 1.0,
+        }
+    }
+
+    /// A capture's table: auto and the reference at 60 and 300 s, three storages each, and
+    /// both curves.
+    pub fn table(name: &str) -> Table {
+        Table {
+            capture: name.into(),
+            name: name.into(),
+            mesh: None,
+            budgets: vec![60.0, 300.0],
+            cells: ["auto", "pytorch"]
+                .iter()
+                .flat_map(|c| {
+                    [60.0, 300.0].map(|b| Cell {
+                        config: (*c).into(),
+                        budget: b,
+                        seconds: b,
+                        steps: 1,
+                        psnr: 30.0 + b / 100.0,
+                        ssim: 0.9,
+                        mse: 10.0,
+                        asset_bytes: 1,
+                        parts: None,
+                        storages: ["f16", "q8", "q4"]
+                            .iter()
+                            .enumerate()
+                            .map(|(i, n)| super::bytes::StorageCell {
+                                name: (*n).into(),
+                                bytes: 4_000_000 >> i,
+                                psnr: 30.0 - i as f64 + b / 100.0,
+                            })
+                            .collect(),
+                    })
+                })
+                .collect(),
+            curves: vec![
+                (
+                    "auto".into(),
+                    (1..30)
+                        .map(|i| rec(10.0 * i as f64, 25.0 + i as f64 / 5.0))
+                        .collect(),
+                ),
+                (
+                    "pytorch".into(),
+                    (1..30)
+                        .map(|i| rec(10.0 * i as f64, 24.0 + i as f64 / 6.0))
+                        .collect(),
+                ),
+            ],
+        }
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn saved_sets_and_tables_read_back_joined_with_unmeasured_figures_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut a = testing::table("a");
+        a.cells[2].ssim = f64::NAN; // the reference's SSIM, not measured
+        let set = Suite {
+            tables: vec![a, testing::table("b")],
+            summary: Vec::new(),
+        };
+        let set_path = dir.path().join("set.json");
+        write_json(&set_path, &set).unwrap();
+        let one_path = dir.path().join("c.json");
+        write_json(&one_path, &testing::table("c")).unwrap();
+        let t = read_tables(&[set_path.clone(), one_path.clone()]).unwrap();
+        assert_eq!(
+            t.iter().map(|t| t.name.as_str()).collect::<Vec<_>>(),
+            ["a", "b", "c"]
+        );
+        assert!(t[0].cells[2].ssim.is_nan() && t[0].cells[0].ssim == 0.9);
+        assert!(t[0].curves[0].1[0].val_psnr.is_nan());
+        assert_eq!(t[1].cells.len(), 4);
+        let md = full_markdown(&Suite {
+            summary: summarise(&t),
+            tables: t,
+        });
+        assert!(md.contains("| a | pytorch | 30.60 / - / 10.0 |"), "{md}");
+        // The same capture twice, and a file that is not a table, are errors naming it.
+        let e = read_tables(&[set_path.clone(), set_path.clone()]).unwrap_err();
+        assert!(format!("{e:#}").contains("`a` is in two"), "{e:#}");
+        let bad = dir.path().join("bad.json");
+        std::fs::write(&bad, "{\"cells\": 3}").unwrap();
+        let e = read_tables(&[bad]).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("bad.json: not a `dnr bench bake` table"),
+            "{e:#}"
+        );
+    }
 
     #[test]
     fn run_names_carry_the_proxy() {

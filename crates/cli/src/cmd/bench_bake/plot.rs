@@ -76,9 +76,14 @@ fn draw_panels(s: &Suite, draw: PanelFn) -> Result<Vec<u8>> {
     let mut png = Vec::new();
     {
         use image::ImageEncoder;
-        image::codecs::png::PngEncoder::new(&mut png)
-            .write_image(&buf, w, h, image::ExtendedColorType::Rgb8)
-            .context("encoding the plot")?;
+        // Plots are committed with the figures: the smaller file is worth the time.
+        image::codecs::png::PngEncoder::new_with_quality(
+            &mut png,
+            image::codecs::png::CompressionType::Best,
+            image::codecs::png::FilterType::Adaptive,
+        )
+        .write_image(&buf, w, h, image::ExtendedColorType::Rgb8)
+        .context("encoding the plot")?;
     }
     Ok(png)
 }
@@ -174,16 +179,24 @@ fn legend<'a, CT: plotters::coord::CoordTranslate>(
 
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
-fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::error::Error>> {
-    let curve_points = t
-        .curves
+/// A log axis's tick label, only at 1, 2 and 5 times a power of ten: every tick labelled
+/// runs the decade's labels into each other.
+fn one_two_five(v: f64) -> String {
+    if !(v.is_finite() && v > 0.0) {
+        return String::new();
+    }
+    let m = v / 10f64.powf(v.log10().floor());
+    if [1.0, 2.0, 5.0, 10.0]
         .iter()
-        .flat_map(|(_, r)| r.iter().map(|x| (x.seconds, x.test_psnr)));
-    let cell_points = t.cells.iter().map(|c| (c.seconds, c.psnr));
-    let points: Vec<(f64, f64)> = curve_points
-        .chain(cell_points)
-        .filter(|(s, p)| s.is_finite() && *s > 0.0 && p.is_finite())
-        .collect();
+        .any(|k| (m - k).abs() < 1e-3 * k)
+    {
+        format!("{v:.0}")
+    } else {
+        String::new()
+    }
+}
+
+fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::error::Error>> {
     let x_hi = t.budgets.iter().copied().fold(1.0, f64::max) * 1.15;
     let x_lo = (t.budgets.iter().copied().fold(x_hi, f64::min) / 8.0).max(0.5);
     // The interesting range: from a little below the worst budget dot to above the best.
@@ -209,10 +222,10 @@ fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::
     chart
         .configure_mesh()
         .x_desc("bake seconds (log)")
+        .x_label_formatter(&|s| one_two_five(*s))
         .y_desc("held-out PSNR (dB)")
         .label_style(("sans-serif", 12))
         .draw()?;
-    let _ = points;
     for (i, name) in configs.iter().enumerate() {
         let colour = COLOURS[i % COLOURS.len()];
         if let Some((_, recs)) = t.curves.iter().find(|(c, _)| c == name) {
@@ -246,69 +259,22 @@ fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::
 
 #[cfg(test)]
 mod tests {
-    use super::super::{Cell, Suite, Table};
+    use super::super::testing::table;
+    use super::super::Suite;
     use super::*;
-    use dnr_bake::train::Record;
 
-    fn rec(seconds: f64, psnr: f64) -> Record {
-        Record {
-            step: 1,
-            seconds,
-            train_loss: 0.1,
-            test_psnr: psnr,
-            test_mse: 10.0,
-            val_psnr: f64::NAN,
-            lr_factor: 1.0,
-        }
+    #[test]
+    fn log_axis_labels_only_one_two_five() {
+        let labels: Vec<String> = [10.0, 20.0, 30.0, 50.0, 60.0, 100.0, 200.0, 300.0, 500.0]
+            .iter()
+            .map(|&v| one_two_five(v))
+            .collect();
+        assert_eq!(labels, ["10", "20", "", "50", "", "100", "200", "", "500"]);
+        assert_eq!(one_two_five(0.0), "");
     }
 
     #[test]
     fn one_panel_per_capture_with_every_configuration() {
-        let table = |name: &str| Table {
-            capture: name.into(),
-            name: name.into(),
-            mesh: None,
-            budgets: vec![60.0, 300.0],
-            cells: ["auto", "pytorch"]
-                .iter()
-                .flat_map(|c| {
-                    [60.0, 300.0].map(|b| Cell {
-                        config: (*c).into(),
-                        budget: b,
-                        seconds: b,
-                        steps: 1,
-                        psnr: 30.0 + b / 100.0,
-                        ssim: 0.9,
-                        mse: 10.0,
-                        asset_bytes: 1,
-                        parts: None,
-                        storages: ["f16", "q8", "q4"]
-                            .iter()
-                            .enumerate()
-                            .map(|(i, n)| super::super::bytes::StorageCell {
-                                name: (*n).into(),
-                                bytes: 4_000_000 >> i,
-                                psnr: 30.0 - i as f64 + b / 100.0,
-                            })
-                            .collect(),
-                    })
-                })
-                .collect(),
-            curves: vec![
-                (
-                    "auto".into(),
-                    (1..30)
-                        .map(|i| rec(10.0 * i as f64, 25.0 + i as f64 / 5.0))
-                        .collect(),
-                ),
-                (
-                    "pytorch".into(),
-                    (1..30)
-                        .map(|i| rec(10.0 * i as f64, 24.0 + i as f64 / 6.0))
-                        .collect(),
-                ),
-            ],
-        };
         let s = Suite {
             tables: vec![table("a"), table("b"), table("c"), table("d")],
             summary: Vec::new(),

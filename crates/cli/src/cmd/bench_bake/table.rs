@@ -33,6 +33,16 @@ pub struct Summary {
     pub worst_db_over_pytorch: Option<f64>,
 }
 
+/// SSIM to 4 places, `-` where it was not measured (NaN; runs joined with `--from-json` may
+/// lack it).
+fn ssim(v: f64) -> String {
+    if v.is_nan() {
+        "-".into()
+    } else {
+        format!("{v:.4}")
+    }
+}
+
 fn cell<'a>(t: &'a Table, config: &str, budget: f64) -> Option<&'a Cell> {
     t.cells
         .iter()
@@ -114,7 +124,7 @@ pub fn markdown(s: &Suite) -> String {
             md += &format!("| {} | {config} |", t.name);
             for &b in &budgets {
                 match cell(t, &config, b) {
-                    Some(c) => md += &format!(" {:.2} / {:.4} / {:.1} |", c.psnr, c.ssim, c.mse),
+                    Some(c) => md += &format!(" {:.2} / {} / {:.1} |", c.psnr, ssim(c.ssim), c.mse),
                     None => md += " - |",
                 }
             }
@@ -129,12 +139,12 @@ pub fn markdown(s: &Suite) -> String {
             _ => "-".into(),
         };
         md += &format!(
-            "| {} | {} | {} | {:.2} | {:.4} | {:.1} | {:.2} ({}) | {vs} |\n",
+            "| {} | {} | {} | {:.2} | {} | {:.1} | {:.2} ({}) | {vs} |\n",
             r.config,
             r.budget,
             r.captures,
             r.mean_psnr,
-            r.mean_ssim,
+            ssim(r.mean_ssim),
             r.mean_mse,
             r.worst_psnr,
             r.worst_capture
