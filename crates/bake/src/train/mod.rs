@@ -172,6 +172,8 @@ pub struct Trainer {
     pub phase_seconds: PhaseSeconds,
     /// Quantisation-aware fine-tuning: the storage the forward pass imitates, when active.
     qat: Option<quantise::QatTarget>,
+    /// The levels' fits the training steps round with, and the steps since they were fitted.
+    qat_fits: Option<(quantise::LevelFits, u32)>,
 }
 
 /// Wall seconds of the phases of [`Trainer::step`], summed over steps (what `dnr bench train`
@@ -308,6 +310,7 @@ impl Trainer {
             lr_scale: 1.0,
             phase_seconds: PhaseSeconds::default(),
             qat: None,
+            qat_fits: None,
         })
     }
 
@@ -316,6 +319,7 @@ impl Trainer {
     /// gradients update the full-precision values (straight-through).
     pub fn set_qat(&mut self, target: Option<quantise::QatTarget>) {
         self.qat = target.filter(|t| !t.is_identity());
+        self.qat_fits = None;
     }
 
     /// The storage quantisation-aware fine-tuning imitates, if active.
@@ -323,7 +327,8 @@ impl Trainer {
         self.qat.as_ref()
     }
 
-    /// The texture as the forward pass reads it: rounded as stored during fine-tuning.
+    /// The texture as the forward pass reads it: rounded as stored during fine-tuning, with
+    /// ranges fitted now (evaluations).
     fn forward_pyramid(&self) -> Cow<'_, Pyramid> {
         match &self.qat {
             Some(q) if q.level_bits.iter().any(Option::is_some) => {
@@ -331,6 +336,22 @@ impl Trainer {
             }
             _ => Cow::Borrowed(&self.pyr),
         }
+    }
+
+    /// [`Self::forward_pyramid`] for a training step: the ranges are refitted every
+    /// [`quantise::REFIT_EVERY`] steps and reused in between.
+    fn step_pyramid(&mut self) -> Cow<'_, Pyramid> {
+        let bits = match &self.qat {
+            Some(q) if q.level_bits.iter().any(Option::is_some) => &q.level_bits,
+            _ => return Cow::Borrowed(&self.pyr),
+        };
+        let (fits, age) = match self.qat_fits.take() {
+            Some((fits, age)) if age < quantise::REFIT_EVERY => (fits, age),
+            _ => (quantise::fit_levels(&self.pyr, bits), 0),
+        };
+        let out = quantise::quantised_pyramid_with(&self.pyr, &fits);
+        self.qat_fits = Some((fits, age + 1));
+        Cow::Owned(out)
     }
 
     /// Whether the forward pass rounds the weights through `int8`.
@@ -499,7 +520,7 @@ impl Trainer {
         let mut x = Tensor::scratch(self.pyr.channels, h, w);
         // During fine-tuning the taps read the rounded texture; their positions and weights,
         // all the backward uses, are those of the full-precision one (straight-through).
-        let taps = sample_forward_taps(&self.forward_pyramid(), &v.gbuf, &mut x.data)
+        let taps = sample_forward_taps(&self.step_pyramid(), &v.gbuf, &mut x.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         self.sh_modulate(v, &mut x.data)?;
         lap(&mut t, &mut ph.features);

@@ -5,8 +5,9 @@
 //! holds what was optimised, not a rounding of it.
 //!
 //! The rounding is `dnr_format`'s own ([`dnr_format::quant`], [`dnr_format::weights`]), with
-//! parameters fitted to the current values exactly as the exporter fits them, so the forward
-//! pass of the last step sees bit for bit what a reader decodes.
+//! parameters fitted to the values exactly as the exporter fits them: afresh for every
+//! evaluation (so what validation measures is bit for bit what a reader decodes), and every
+//! [`REFIT_EVERY`] steps for training steps (the levels' range search is the costly part).
 
 use dnr_format::quant::{fake_quantise_hwc, fit_parameters_hwc};
 use dnr_format::weights::{int8_dequantise, int8_quantise};
@@ -46,10 +47,38 @@ pub fn fake_quantise_level(data: &mut [f32], channels: usize, bits: u32) {
 
 /// The pyramid as a reader of the asset will decode it (levels without bits unchanged).
 pub fn quantised_pyramid(pyr: &Pyramid, level_bits: &[Option<u32>]) -> Pyramid {
+    quantised_pyramid_with(pyr, &fit_levels(pyr, level_bits))
+}
+
+/// Steps of fine-tuning between refits of the levels' ranges ([`fit_levels`]): the search
+/// for each channel's range costs several times the rounding, and the texture moves little
+/// in a few steps. Evaluations and the exporter always fit afresh.
+pub const REFIT_EVERY: u32 = 8;
+
+/// Each level's `(bits, scale, offset)` as the exporter would fit them now (`None`: stored
+/// f16, not rounded).
+pub type LevelFits = Vec<Option<(u32, Vec<f32>, Vec<f32>)>>;
+
+/// Fits every level that `level_bits` rounds, as the exporter does.
+pub fn fit_levels(pyr: &Pyramid, level_bits: &[Option<u32>]) -> LevelFits {
+    pyr.levels
+        .iter()
+        .zip(level_bits.iter().chain(std::iter::repeat(&None)))
+        .map(|(level, bits)| {
+            bits.map(|b| {
+                let (scale, offset) = fit_parameters_hwc(&level.data, pyr.channels, b);
+                (b, scale, offset)
+            })
+        })
+        .collect()
+}
+
+/// The pyramid rounded with given fits (levels without one unchanged).
+pub fn quantised_pyramid_with(pyr: &Pyramid, fits: &LevelFits) -> Pyramid {
     let mut out = pyr.clone();
-    for (level, bits) in out.levels.iter_mut().zip(level_bits) {
-        if let Some(bits) = bits {
-            fake_quantise_level(&mut level.data, pyr.channels, *bits);
+    for (level, fit) in out.levels.iter_mut().zip(fits) {
+        if let Some((bits, scale, offset)) = fit {
+            fake_quantise_hwc(&mut level.data, scale, offset, *bits);
         }
     }
     out
@@ -128,6 +157,40 @@ mod tests {
             .unwrap();
             assert_eq!(back.data, q.levels[0].data, "{storage:?}");
         }
+    }
+
+    #[test]
+    fn kept_fits_round_onto_their_own_grid_and_unlisted_levels_stay_f16() {
+        let level = |s: usize, k: f32| Level {
+            width: s,
+            height: s,
+            data: (0..s * s * 3).map(|i| (i as f32 * k).sin()).collect(),
+        };
+        let mut pyr = Pyramid {
+            channels: 3,
+            levels: vec![level(8, 0.37), level(4, 0.53)],
+            ..Pyramid::default()
+        };
+        let fits = fit_levels(&pyr, &[Some(4)]);
+        assert!(fits[0].is_some() && fits[1].is_none());
+        assert_eq!(
+            quantised_pyramid_with(&pyr, &fits).levels,
+            quantised_pyramid(&pyr, &[Some(4)]).levels
+        );
+        // The texture moves; the kept fit still rounds onto its 16 values per channel.
+        for v in &mut pyr.levels[0].data {
+            *v *= 1.01;
+        }
+        let q = quantised_pyramid_with(&pyr, &fits);
+        let Some((_, scale, offset)) = &fits[0] else {
+            unreachable!()
+        };
+        for (i, v) in q.levels[0].data.iter().enumerate() {
+            let k = i % 3;
+            let steps = (v - offset[k]) / scale[k];
+            assert!((steps - steps.round()).abs() < 1e-3 && (0.0..=15.0).contains(&steps.round()));
+        }
+        assert_eq!(q.levels[1].data, pyr.levels[1].data);
     }
 
     #[test]
