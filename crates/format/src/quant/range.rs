@@ -202,26 +202,17 @@ impl Histogram {
     /// The best `(scale, offset)` found, in f32 (`None` when no candidate is representable).
     fn search(&self, lo: f32, hi: f32, top: f32) -> Option<(f32, f32)> {
         let top64 = f64::from(top);
-        let lows: Vec<f64> = TAILS
-            .iter()
-            .map(|&f| {
-                if f == 0.0 {
-                    f64::from(lo)
-                } else {
-                    self.quantile(f, false)
-                }
-            })
-            .collect();
-        let highs: Vec<f64> = TAILS
-            .iter()
-            .map(|&f| {
-                if f == 0.0 {
-                    f64::from(hi)
-                } else {
-                    self.quantile(f, true)
-                }
-            })
-            .collect();
+        // Candidate ends: the exact extreme for a tail of 0, else the tail's quantile.
+        let ends = |extreme: f32, from_top: bool| -> Vec<f64> {
+            TAILS
+                .iter()
+                .map(|&f| match f {
+                    0.0 => f64::from(extreme),
+                    _ => self.quantile(f, from_top),
+                })
+                .collect()
+        };
+        let (lows, highs) = (ends(lo, false), ends(hi, true));
         let mut best: Option<(f64, f64, f64)> = None;
         let consider = |a: f64, b: f64, best: &mut Option<(f64, f64, f64)>| {
             if b > a {
@@ -287,22 +278,15 @@ mod tests {
                     .skip(k)
                     .step_by(2)
                     .fold(f32::NEG_INFINITY, |a, &b| a.max(b));
-                let full = exact_errors(
+                // Channel k's full range (the other entry is not read).
+                let (full, ours) = exact_errors(
                     &data,
                     1,
                     &[full_range(lo, hi, top); 2],
                     &[(s[0], o[0]), (s[1], o[1])],
                     top,
-                )
-                .0[k];
-                let ours = exact_errors(
-                    &data,
-                    1,
-                    &[full_range(lo, hi, top); 2],
-                    &[(s[0], o[0]), (s[1], o[1])],
-                    top,
-                )
-                .1[k];
+                );
+                let (full, ours) = (full[k], ours[k]);
                 assert!(ours <= full, "top {top} channel {k}: {ours} > {full}");
                 if top == 15.0 && k == 0 {
                     // The heavy tail: several times less error than spanning it.
