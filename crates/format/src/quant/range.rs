@@ -301,6 +301,26 @@ mod tests {
     }
 
     #[test]
+    fn extreme_ranges_give_parameters_a_reader_accepts() {
+        let cases: [&[f32]; 4] = [
+            &[-3e38, 3e38, 0.0, 1.0],
+            &[1e-40, 2e-40, 3e-40, 1e-40],
+            &[1.0, 1.0 + f32::EPSILON, 1.0, 1.0],
+            &[f32::MAX, f32::MAX, -f32::MAX, 0.0],
+        ];
+        for data in cases {
+            for top in [15.0, 255.0] {
+                let (s, o) = fit(data, 1, top);
+                let ok = s[0].is_finite() && s[0] > 0.0 && o[0].is_finite();
+                assert!(
+                    ok && (o[0] + s[0] * top).is_finite(),
+                    "{data:?}: {s:?} {o:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn constant_and_empty_channels_decode_exactly() {
         let (s, o) = fit(&[0.25, 3.0, 0.25, 3.0], 2, 15.0);
         assert_eq!((s, o), (vec![1.0, 1.0], vec![0.25, 3.0]));
