@@ -38,13 +38,6 @@ impl QatTarget {
     }
 }
 
-/// Rounds one level's values (texel-interleaved, `channels` each) through `bits`-bit storage,
-/// in place, with the parameters the exporter would choose for them.
-pub fn fake_quantise_level(data: &mut [f32], channels: usize, bits: u32) {
-    let (scale, offset) = fit_parameters_hwc(data, channels, bits);
-    fake_quantise_hwc(data, &scale, &offset, bits);
-}
-
 /// The pyramid as a reader of the asset will decode it (levels without bits unchanged).
 pub fn quantised_pyramid(pyr: &Pyramid, level_bits: &[Option<u32>]) -> Pyramid {
     quantised_pyramid_with(pyr, &fit_levels(pyr, level_bits))

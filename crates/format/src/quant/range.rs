@@ -12,8 +12,8 @@
 /// Bins of the histogram a channel's range is searched on: far finer than a 4- or 8-bit step.
 const BINS: usize = 1024;
 /// Texels the histogram and the exact comparison read at most (an even stride through the
-/// level): the fit runs on every training step of quantisation-aware fine-tuning, and 65536
-/// samples pin a mean squared error far closer than the candidates differ.
+/// level): the fit runs every few steps of quantisation-aware fine-tuning, and 65536 samples
+/// pin a mean squared error far closer than the candidates differ.
 const SAMPLE_TEXELS: usize = 1 << 16;
 /// Fractions of the values clamped at each end that the search tries.
 const TAILS: [f64; 8] = [0.0, 1e-4, 5e-4, 2e-3, 5e-3, 1e-2, 3e-2, 0.1];
@@ -126,7 +126,7 @@ fn exact_errors(
     (ea, eb)
 }
 
-/// A channel's non-empty bins as weighted points at their mean value.
+/// A channel's non-empty bins as weighted points at their centres.
 struct Histogram {
     /// `(count, centre)` of each non-empty bin, in increasing order.
     points: Vec<(f64, f64)>,
@@ -151,18 +151,16 @@ impl Histogram {
     fn quantile(&self, f: f64, from_top: bool) -> f64 {
         let want = f * self.total;
         let mut seen = 0.0;
-        let iter: Box<dyn Iterator<Item = &(f64, f64)>> = if from_top {
-            Box::new(self.points.iter().rev())
-        } else {
-            Box::new(self.points.iter())
-        };
-        for &(n, m) in iter {
+        let first_past = |&&(n, _): &&(f64, f64)| {
             seen += n;
-            if seen > want {
-                return m;
-            }
-        }
-        self.points.last().map_or(0.0, |p| p.1)
+            seen > want
+        };
+        let found = if from_top {
+            self.points.iter().rev().find(first_past)
+        } else {
+            self.points.iter().find(first_past)
+        };
+        found.or(self.points.last()).map_or(0.0, |p| p.1)
     }
 
     /// Estimated squared error of the range `a..=b` with `top` steps.
