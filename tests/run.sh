@@ -11,6 +11,8 @@ cd "$(dirname "$0")/.."
 root=$PWD
 tools=$root/.tools
 export CARGO_TERM_COLOR=never
+# One clean build per run: incremental caches would only double the disk it takes.
+export CARGO_INCREMENTAL=0
 
 step() { printf '\n== %s\n' "$*"; }
 
