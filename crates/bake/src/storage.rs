@@ -199,19 +199,19 @@ pub fn measure_on(
     Ok((bytes, psnr))
 }
 
-/// One trial of auto: a part in an encoding, measured with the choices made before it.
+/// One trial of auto: a part in an encoding, measured with every other part f16.
 #[derive(Clone, Debug, Serialize)]
 #[serde(rename_all = "camelCase")]
 pub struct Trial {
     /// The part: `level 0 (512x512)` or `weights`.
     pub part: String,
-    /// The encoding tried: `q4`, `q8`, `int8`.
+    /// The encoding tried: `q3` to `q8` (a grid of `2^p` steps), `int8`.
     pub encoding: String,
     /// The part's bytes in that encoding.
     pub bytes: u64,
     /// The part's bytes in f16.
     pub f16_bytes: u64,
-    /// Validation PSNR lost against all-f16 storage (dB), choices so far included.
+    /// Validation PSNR lost against all-f16 storage (dB), this part alone quantised.
     pub cost_db: f64,
     /// Whether it was kept.
     pub chosen: bool,
@@ -227,7 +227,8 @@ pub struct StorageReport {
     pub bound_db: f64,
     /// The storage written.
     pub chosen: String,
-    /// Per level, finest first: `f16`, `q8` or `q4`.
+    /// Per level, finest first: `f16`, or `q1` to `q8` (the grid's bits; 4-bit PNG values up
+    /// to `q4`, 8-bit above).
     pub levels: Vec<String>,
     /// `f16` or `int8` (biases stay f16).
     pub weights: String,
@@ -235,6 +236,9 @@ pub struct StorageReport {
     pub qat: Option<QatTarget>,
     /// Auto's trials in order (empty for the fixed encodings).
     pub trials: Vec<Trial>,
+    /// Auto's choices together, measured (auto only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub combined: Option<Combined>,
     /// The state auto's trial costs are measured against (auto only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measured_on: Option<MeasuredOn>,
@@ -271,15 +275,51 @@ pub struct Variant {
     pub test_psnr: f64,
 }
 
-/// Auto's choice, measured on one state: for each level (finest first) and then the weights,
-/// the smallest encoding whose validation cost against all-f16 storage of that state, with
-/// the choices before it included, stays under `bound_db`.
+/// Auto's choices measured together: each round solves for the fewest bytes whose summed
+/// single-part costs stay under `budget_db`, then measures that storage; a round whose
+/// measured cost exceeds the bound shrinks the budget for the next.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Combined {
+    /// Each round: `(budget_db, storage, bytes of the levels and weights, measured cost)`.
+    pub rounds: Vec<Round>,
+}
+
+/// One round of [`Combined`].
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct Round {
+    /// The summed single-part cost allowed.
+    pub budget_db: f64,
+    /// The storage solved for.
+    pub storage: String,
+    /// Its levels' and weights' bytes.
+    pub bytes: u64,
+    /// Its validation cost against all-f16 storage, measured.
+    pub cost_db: f64,
+}
+
+/// Grids auto tries for each level, coarsest first (bits: `2^p` steps per channel).
+pub const AUTO_PRECISIONS: [u32; 6] = [3, 4, 5, 6, 7, 8];
+
+/// A level's finer grids are not tried once one costs at most this fraction of the bound:
+/// they could only save that little and take more bytes.
+const NEGLIGIBLE_FRACTION: f64 = 0.1;
+
+/// Rounds of solving and measuring before auto settles for the last storage under the bound.
+const ROUNDS: usize = 4;
+
+/// Auto's choice, measured on one state: for each level (finest first) and for the weights,
+/// each encoding alone against all-f16 storage of that state; then the fewest bytes whose
+/// measured cost, all choices together, stays under `bound_db`.
 #[derive(Clone, Debug)]
 pub struct AutoChoice {
     /// The storage chosen.
     pub storage: Storage,
     /// Every trial in order.
     pub trials: Vec<Trial>,
+    /// The rounds that measured the choices together.
+    pub combined: Combined,
     /// Validation PSNR (dB) of the state stored as f16: what the costs are measured against.
     pub base_val_psnr: f64,
 }
@@ -293,6 +333,43 @@ fn validation_frames(loaded: &Loaded) -> Vec<crate::capture::Frame> {
         .collect()
 }
 
+/// One option for one part: `(trial index or None for f16, bytes, cost)`.
+type PartOption = (Option<usize>, u64, f64);
+
+/// The option of each part with the fewest bytes in all whose costs (negative ones counted
+/// as 0) sum to at most `budget_db`; f16 (option 0, cost 0) always fits.
+fn fewest_bytes(options: &[Vec<PartOption>], budget_db: f64) -> Vec<usize> {
+    // Costs in steps of a thousandth of a dB, rounded up, so the sum never exceeds the budget.
+    const STEP: f64 = 1e-3;
+    let cap = ((budget_db.max(0.0) / STEP).floor() as usize).min(100_000);
+    let units = |c: f64| (c.max(0.0) / STEP).ceil() as usize;
+    // best[u] = (bytes, choices) with total units <= u.
+    let mut best: Vec<Option<(u64, Vec<usize>)>> = vec![Some((0, Vec::new())); cap + 1];
+    for part in options {
+        let mut next: Vec<Option<(u64, Vec<usize>)>> = vec![None; cap + 1];
+        for (u, slot) in next.iter_mut().enumerate() {
+            for (k, &(_, bytes, cost)) in part.iter().enumerate() {
+                let c = units(cost);
+                if c > u {
+                    continue;
+                }
+                if let Some((b, ch)) = &best[u - c] {
+                    let total = b + bytes;
+                    if slot.as_ref().is_none_or(|(sb, _)| total < *sb) {
+                        let mut ch = ch.clone();
+                        ch.push(k);
+                        *slot = Some((total, ch));
+                    }
+                }
+            }
+        }
+        best = next;
+    }
+    best.pop()
+        .flatten()
+        .map_or_else(|| vec![0; options.len()], |(_, ch)| ch)
+}
+
 /// Measures auto's trials on `parts` (see [`AutoChoice`]). Run at the start of the
 /// quantisation-aware fine-tune, the costs are those of the unquantised state, so the bound
 /// holds against what an f16 bake would write; the fine-tune then imitates what was chosen.
@@ -304,65 +381,129 @@ pub fn choose_auto(
     let n = parts.pyr.levels.len();
     let val = validation_frames(loaded);
     let f16 = Storage::uniform(LevelStorage::Exr, n);
-    let mut trials = Vec::new();
+    let mut trials: Vec<Trial> = Vec::new();
+    let mut storages: Vec<Storage> = Vec::new();
     let base = measure(loaded, parts, &f16, &val)?;
-    let mut cur = f16.clone();
-    // Finest level first: it holds most of the bytes.
+    let mut options: Vec<Vec<PartOption>> = Vec::new();
+    // Without validation views nothing can be measured: every option but f16 is left out.
+    let usable = |cost: f64| cost.is_finite();
     for li in 0..n {
         let l = &parts.pyr.levels[li];
-        for enc in [LevelStorage::Q4, LevelStorage::Q8] {
-            let mut trial = cur.clone();
+        let f16_bytes = base.bytes.levels.get(li).copied().unwrap_or(0);
+        let mut opts = vec![(None, f16_bytes, 0.0)];
+        for p in AUTO_PRECISIONS {
+            let Some(enc) = LevelStorage::png(p) else {
+                continue;
+            };
+            let mut trial = f16.clone();
             trial.levels[li] = enc;
             let m = measure(loaded, parts, &trial, &val)?;
             let cost = base.psnr - m.psnr;
-            // Without validation views nothing can be measured: keep f16.
-            let ok = cost.is_finite() && cost <= bound_db;
+            let bytes = m.bytes.levels.get(li).copied().unwrap_or(0);
             trials.push(Trial {
                 part: format!("level {li} ({}x{})", l.width, l.height),
                 encoding: enc.name().into(),
-                bytes: m.bytes.levels.get(li).copied().unwrap_or(0),
-                f16_bytes: base.bytes.levels.get(li).copied().unwrap_or(0),
+                bytes,
+                f16_bytes,
                 cost_db: cost,
-                chosen: ok,
+                chosen: false,
             });
-            if ok {
-                cur = trial;
+            storages.push(trial);
+            if !usable(cost) {
+                break;
+            }
+            opts.push((Some(trials.len() - 1), bytes, cost));
+            if cost <= bound_db * NEGLIGIBLE_FRACTION {
                 break;
             }
         }
+        options.push(opts);
     }
     if base.bytes.weights > 0 {
         let trial = Storage {
             weights: DType::Int8,
-            ..cur.clone()
+            ..f16.clone()
         };
         let m = measure(loaded, parts, &trial, &val)?;
         let cost = base.psnr - m.psnr;
-        let ok = cost.is_finite() && cost <= bound_db;
         trials.push(Trial {
             part: "weights".into(),
             encoding: "int8".into(),
             bytes: m.bytes.weights,
             f16_bytes: base.bytes.weights,
             cost_db: cost,
-            chosen: ok,
+            chosen: false,
         });
-        if ok {
-            cur = trial;
+        storages.push(trial);
+        let mut opts = vec![(None, base.bytes.weights, 0.0)];
+        if usable(cost) {
+            opts.push((Some(trials.len() - 1), m.bytes.weights, cost));
         }
+        options.push(opts);
+    }
+    // Solve, measure together, and shrink the budget while the measured cost is over.
+    let mut rounds = Vec::new();
+    let mut budget = bound_db;
+    let mut chosen = (f16.clone(), Vec::new());
+    for _ in 0..ROUNDS {
+        let pick = fewest_bytes(&options, budget);
+        let picked: Vec<usize> = pick
+            .iter()
+            .zip(&options)
+            .filter_map(|(&k, o)| o.get(k).and_then(|opt| opt.0))
+            .collect();
+        let mut s = f16.clone();
+        for &t in &picked {
+            let from = &storages[t];
+            for (li, l) in from.levels.iter().enumerate() {
+                if *l != LevelStorage::Exr {
+                    s.levels[li] = *l;
+                }
+            }
+            if from.weights != f16.weights {
+                s.weights = from.weights.clone();
+            }
+        }
+        if picked.is_empty() {
+            chosen = (s, picked);
+            break;
+        }
+        let m = measure(loaded, parts, &s, &val)?;
+        let cost = base.psnr - m.psnr;
+        rounds.push(Round {
+            budget_db: budget,
+            storage: s.describe(),
+            bytes: m.bytes.level_total() + m.bytes.weights,
+            cost_db: cost,
+        });
+        if cost.is_finite() && cost <= bound_db {
+            chosen = (s, picked);
+            break;
+        }
+        // Parts' costs added up to less than they cost together: ask for less next time.
+        let summed: f64 = pick
+            .iter()
+            .zip(&options)
+            .map(|(&k, o)| o.get(k).map_or(0.0, |opt| opt.2.max(0.0)))
+            .sum();
+        budget = (summed * bound_db / cost.max(1e-9)).min(budget * 0.7);
+    }
+    for t in chosen.1 {
+        trials[t].chosen = true;
     }
     Ok(AutoChoice {
-        storage: cur,
+        storage: chosen.0,
         trials,
+        combined: Combined { rounds },
         base_val_psnr: base.psnr,
     })
 }
 
-/// What the fine-tune imitates for a chosen storage: each quantised level's bits, and `int8`
+/// What the fine-tune imitates for a chosen storage: each quantised level's grid, and `int8`
 /// weights when chosen.
 pub fn qat_target_of(storage: &Storage) -> QatTarget {
     QatTarget {
-        level_bits: storage.levels.iter().map(|l| l.bits()).collect(),
+        level_bits: storage.levels.iter().map(|l| l.precision()).collect(),
         int8_weights: storage.weights == DType::Int8,
     }
 }
@@ -383,6 +524,7 @@ pub fn choose(
     let val = validation_frames(loaded);
     let f16 = Storage::uniform(LevelStorage::Exr, n);
     let mut trials = Vec::new();
+    let mut combined = None;
     let mut measured_on = None;
     let chosen = match mode {
         StorageMode::F16 => f16.clone(),
@@ -409,6 +551,7 @@ pub fn choose(
                 }
             };
             trials = p.trials;
+            combined = Some(p.combined);
             p.storage
         }
     };
@@ -453,6 +596,7 @@ pub fn choose(
         weights: chosen.weights.to_string(),
         qat,
         trials,
+        combined,
         measured_on,
         variants,
         seconds: t0.elapsed().as_secs_f64(),
@@ -483,6 +627,14 @@ pub fn describe(r: &StorageReport) -> Vec<String> {
             if t.chosen { ", chosen" } else { "" }
         ));
     }
+    if let Some(c) = &r.combined {
+        for round in &c.rounds {
+            out.push(format!(
+                "  together, within {:.3} dB summed: {} ({} bytes), costs {:.3} dB",
+                round.budget_db, round.storage, round.bytes, round.cost_db
+            ));
+        }
+    }
     for v in &r.variants {
         out.push(format!(
             "  {:>6}: {} bytes (levels {}, weights {}, fallback {}, mesh {}), validation {:.2} dB, test {:.2} dB",
@@ -497,4 +649,32 @@ pub fn describe(r: &StorageReport) -> Vec<String> {
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fewest_bytes_spends_the_budget_where_it_saves_most() {
+        // Two levels and the weights; option 0 is f16.
+        let options = vec![
+            vec![
+                (None, 1000, 0.0),
+                (Some(0), 300, 0.08),
+                (Some(1), 500, 0.02),
+            ],
+            vec![(None, 400, 0.0), (Some(2), 100, 0.05), (Some(3), 200, 0.01)],
+            vec![(None, 200, 0.0), (Some(4), 100, -0.01)],
+        ];
+        // 0.1 dB: level 0's coarsest grid with level 1's finer one (600 bytes, 0.09 dB) beats
+        // level 0's finer grid with level 1's coarsest (700 bytes, 0.07 dB).
+        assert_eq!(fewest_bytes(&options, 0.1), vec![1, 2, 1]);
+        // 0.07 dB: the coarsest level 0 no longer fits.
+        assert_eq!(fewest_bytes(&options, 0.07), vec![2, 1, 1]);
+        // Nothing to spend: only free options (a negative cost counts as 0).
+        assert_eq!(fewest_bytes(&options, 0.0), vec![0, 0, 1]);
+        assert_eq!(fewest_bytes(&options, -1.0), vec![0, 0, 1]);
+        assert_eq!(fewest_bytes(&[], 0.1), Vec::<usize>::new());
+    }
 }

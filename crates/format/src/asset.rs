@@ -647,28 +647,47 @@ pub enum LevelStorage {
     /// OpenEXR `HALF` channels (revision 1.0).
     #[default]
     Exr,
-    /// 8-bit quantised PNG (revision 1.1).
-    Q8,
-    /// 4-bit quantised PNG (revision 1.1).
-    Q4,
+    /// Quantised PNG (revision 1.1) on a grid of `2^p` steps per channel, `p` in `1..=8`:
+    /// 4-bit values for `p <= 4`, 8-bit above. Below the container's depth the stored
+    /// integers are multiples of `2^(bits - p)` (and `scale` is divided by as much), which
+    /// readers decode like any other; deflate then codes fewer distinct values, so the PNG
+    /// is smaller. A writer's choice: the format has no field for it.
+    Png(u8),
 }
 
 impl LevelStorage {
-    /// The quantisation depth, `None` for EXR.
+    /// 8-bit quantised PNG at full precision.
+    pub const Q8: LevelStorage = LevelStorage::Png(8);
+    /// 4-bit quantised PNG at full precision.
+    pub const Q4: LevelStorage = LevelStorage::Png(4);
+
+    /// A PNG level at `precision` bits, `None` outside `1..=8`.
+    pub fn png(precision: u32) -> Option<LevelStorage> {
+        (1..=8)
+            .contains(&precision)
+            .then_some(LevelStorage::Png(precision as u8))
+    }
+
+    /// The container's depth (the `quantization.bits` written), `None` for EXR.
     pub fn bits(self) -> Option<u32> {
+        self.precision().map(|p| if p <= 4 { 4 } else { 8 })
+    }
+
+    /// Bits of the grid the values are rounded to (`log2` of its steps), `None` for EXR.
+    pub fn precision(self) -> Option<u32> {
         match self {
             LevelStorage::Exr => None,
-            LevelStorage::Q8 => Some(8),
-            LevelStorage::Q4 => Some(4),
+            LevelStorage::Png(p) => Some(u32::from(p.clamp(1, 8))),
         }
     }
 
-    /// The name the baker's `--storage` and reports use: `f16`, `q8`, `q4`.
+    /// The name the baker's `--storage` and reports use: `f16`, `q8`, `q4`, or `q1` to `q7`
+    /// for the other grids.
     pub fn name(self) -> &'static str {
-        match self {
-            LevelStorage::Exr => "f16",
-            LevelStorage::Q8 => "q8",
-            LevelStorage::Q4 => "q4",
+        const NAMES: [&str; 8] = ["q1", "q2", "q3", "q4", "q5", "q6", "q7", "q8"];
+        match self.precision() {
+            None => "f16",
+            Some(p) => NAMES[p as usize - 1],
         }
     }
 }
@@ -933,15 +952,15 @@ impl AssetBuilder {
                     )));
                 }
                 let storage = t.storage.get(li).copied().unwrap_or_default();
-                let (bytes, mime, quantization) = match storage.bits() {
+                let (bytes, mime, quantization) = match storage.bits().zip(storage.precision()) {
                     None => (
                         encode_level(l, li, t.compression)
                             .map_err(|e| Error::invalid(format!("texture {ti}: {e}")))?,
                         model::LEVEL_MIME_TYPE,
                         None,
                     ),
-                    Some(bits) => {
-                        let (q, png) = crate::quant::encode_png_level(l, bits)
+                    Some((bits, precision)) => {
+                        let (q, png) = crate::quant::encode_png_level_at(l, bits, precision)
                             .map_err(|e| Error::invalid(format!("texture {ti} level {li}: {e}")))?;
                         (png, model::LEVEL_MIME_TYPE_PNG, Some(q))
                     }

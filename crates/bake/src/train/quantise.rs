@@ -24,8 +24,8 @@ pub const QAT_START: f64 = 1.0 - QAT_FRACTION;
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "camelCase")]
 pub struct QatTarget {
-    /// Bits of each level, finest first (`None`: stored as f16, not rounded here; levels past
-    /// the end are `None` too).
+    /// Bits of each level's grid (`2^p` steps per channel), finest first (`None`: stored as
+    /// f16, not rounded here; levels past the end are `None` too).
     pub level_bits: Vec<Option<u32>>,
     /// Whether the tensors of rank 2 or more are stored `int8` (biases stay f16).
     pub int8_weights: bool,

@@ -142,8 +142,27 @@ pub fn fake_quantise_hwc(data: &mut [f32], scale: &[f32], offset: &[f32], bits: 
 /// Encodes a level as a quantised PNG at `bits` (8 or 4): the `quantization` object and the
 /// PNG bytes. Values must be finite.
 pub fn encode_png_level(level: &TextureLevel, bits: u32) -> Result<(Quantization, Vec<u8>)> {
+    encode_png_level_at(level, bits, bits)
+}
+
+/// [`encode_png_level`] on a coarser grid: values rounded to `precision` bits (`1..=bits`),
+/// stored as `q << (bits - precision)` with `scale` divided by `2^(bits - precision)`. A
+/// reader's `offset + scale * q` is then exactly `offset + scale_p * k`, the value rounded
+/// on the `precision`-bit grid (both factors only change by a power of two), and deflate
+/// codes fewer distinct values, so the PNG is smaller.
+pub fn encode_png_level_at(
+    level: &TextureLevel,
+    bits: u32,
+    precision: u32,
+) -> Result<(Quantization, Vec<u8>)> {
     let per = channels_per_texel(bits)
         .ok_or_else(|| Error::invalid(format!("quantisation to {bits} bits")))?;
+    if !(1..=bits).contains(&precision) {
+        return Err(Error::invalid(format!(
+            "a {precision}-bit grid in {bits}-bit values"
+        )));
+    }
+    let shift = bits - precision;
     if let Some(i) = level.data.iter().position(|v| !v.is_finite()) {
         return Err(Error::invalid(format!(
             "texel value {i} is {}",
@@ -158,7 +177,7 @@ pub fn encode_png_level(level: &TextureLevel, bits: u32) -> Result<(Quantization
     if level.data.len() != w * h * c {
         return Err(Error::invalid("level data length differs from its size"));
     }
-    let (scale, offset) = fit_parameters(level, bits);
+    let (scale_p, offset) = fit_parameters(level, precision);
     let (pw, ph) = png_size(level.width, level.height, level.channels, bits)
         .ok_or_else(|| Error::invalid("quantised level height overflows"))?;
     let groups = c.div_ceil(per as usize);
@@ -167,7 +186,7 @@ pub fn encode_png_level(level: &TextureLevel, bits: u32) -> Result<(Quantization
         for i in 0..w {
             let texel = &level.data[(j * w + i) * c..][..c];
             for (k, &v) in texel.iter().enumerate() {
-                let q = quantise(v, scale[k], offset[k], bits);
+                let q = quantise(v, scale_p[k], offset[k], precision) << shift;
                 let (g, within) = (k / per as usize, k % per as usize);
                 let (comp, shift) = if bits == 8 {
                     (within, 0)
@@ -179,6 +198,8 @@ pub fn encode_png_level(level: &TextureLevel, bits: u32) -> Result<(Quantization
         }
     }
     let png = crate::asset::encode_png_rgba8(pw, ph, &rgba)?;
+    let step = 1.0 / (1u32 << shift) as f32;
+    let scale = scale_p.iter().map(|s| s * step).collect();
     Ok((
         Quantization {
             bits,
@@ -324,6 +345,46 @@ mod tests {
                 let want = a.clamp(o, end);
                 assert!((want - b).abs() <= 0.5 * s * 1.0001, "{a} {b} {s} {o}");
             }
+        }
+    }
+
+    #[test]
+    fn a_coarser_grid_decodes_to_its_own_rounding_and_takes_fewer_bytes() {
+        // A smooth level with a little noise, like a trained one.
+        let (w, h, c) = (64u32, 64u32, 8u32);
+        let data = (0..w * h * c)
+            .map(|i| {
+                let (t, k) = ((i / c) as f32, (i % c) as f32);
+                (t * 0.013 + k).sin() * 0.5 + ((i * 7919 % 97) as f32 / 97.0 - 0.5) * 0.05
+            })
+            .collect();
+        let l = TextureLevel {
+            width: w,
+            height: h,
+            channels: c,
+            data,
+        };
+        let expect = LevelExpect {
+            width: w,
+            height: h,
+            channels: c,
+        };
+        for bits in [8, 4] {
+            let mut last = usize::MAX;
+            for p in (1..=bits).rev() {
+                let (q, png) = encode_png_level_at(&l, bits, p).unwrap();
+                assert_eq!(q.bits, bits);
+                let back = decode_png_level(&png, expect, &q, &Limits::default()).unwrap();
+                // Bit for bit the value rounded on the p-bit grid with the p-bit fit.
+                let (s, o) = fit_parameters(&l, p);
+                let mut fake = l.clone();
+                fake_quantise_level(&mut fake, &s, &o, p);
+                assert_eq!(back.data, fake.data, "bits {bits} precision {p}");
+                assert!(png.len() < last, "bits {bits} precision {p}: {}", png.len());
+                last = png.len();
+            }
+            assert!(encode_png_level_at(&l, bits, bits + 1).is_err());
+            assert!(encode_png_level_at(&l, bits, 0).is_err());
         }
     }
 
