@@ -64,19 +64,20 @@ pub fn png_level(data: &[u8]) {
     let _ = dnr_format::quant::decode_png_level(rest, expect, &q, &fuzz_limits());
 }
 
-/// One weights tensor. Byte 0 chooses the dtype (`% 3`: f16, f32, int8) and the rank
-/// (1..=4), the next 4 bytes per dimension the shape (little-endian u32, as a hostile file
+/// One weights tensor. Byte 0 chooses the dtype (`% 4`: f16, f32, int8, int4) and the rank
+/// (`/ 4 % 4 + 1`), the next 4 bytes per dimension the shape (little-endian u32, as a hostile file
 /// could claim); the rest is the tensor data.
 pub fn weights(data: &[u8]) {
     let Some((&head, mut rest)) = data.split_first() else {
         return;
     };
-    let dtype = match head % 3 {
+    let dtype = match head % 4 {
         0 => DType::F16,
         1 => DType::F32,
-        _ => DType::Int8,
+        2 => DType::Int8,
+        _ => DType::Int4,
     };
-    let rank = usize::from(head / 3 % 4) + 1;
+    let rank = usize::from(head / 4 % 4) + 1;
     let mut shape = Vec::with_capacity(rank);
     for _ in 0..rank {
         let Some((dim, tail)) = rest.split_first_chunk::<4>() else {
@@ -161,28 +162,42 @@ pub fn seeds(name: &str) -> Vec<Vec<u8>> {
         }
         "weights" => {
             let mut out = Vec::new();
-            for (dtype, shape) in [
-                (DType::F16, vec![4u32, 3]),
-                (DType::F32, vec![2, 3, 4, 4]),
-                (DType::F16, vec![7]),
-                (DType::Int8, vec![3, 5]),
-                (DType::Int8, vec![2, 3, 4, 4]),
+            for (dtype, shape, first_scale) in [
+                (DType::F16, vec![4u32, 3], None),
+                (DType::F32, vec![2, 3, 4, 4], None),
+                (DType::F16, vec![7], None),
+                (DType::Int8, vec![3, 5], None),
+                (DType::Int8, vec![2, 3, 4, 4], None),
+                (DType::Int4, vec![3, 5], None),
+                (DType::Int4, vec![2, 3, 4, 4], None),
+                // Hostile scales: zero and NaN.
+                (DType::Int4, vec![3, 5], Some(0.0f32)),
+                (DType::Int8, vec![3, 5], Some(f32::NAN)),
             ] {
                 let n: u32 = shape.iter().product();
                 let data: Vec<f32> = (0..n).map(|k| k as f32 * 0.25 - 1.0).collect();
                 let encoded = match dtype {
-                    DType::Int8 => dnr_format::weights::encode_int8("t", &shape, &data),
+                    DType::Int8 | DType::Int4 => {
+                        dnr_format::weights::encode_int("t", &shape, &data, &dtype)
+                    }
                     _ => encode_tensor("t", &data, &dtype),
                 };
-                let Ok(bytes) = encoded else {
+                let Ok(mut bytes) = encoded else {
                     continue;
                 };
+                if let (Some(s), Some(values)) =
+                    (first_scale, dtype.integer_value_bytes(u64::from(n)))
+                {
+                    let at = (values as usize).next_multiple_of(4);
+                    bytes[at..at + 4].copy_from_slice(&s.to_le_bytes());
+                }
                 let kind = match dtype {
                     DType::F16 => 0,
                     DType::F32 => 1,
-                    _ => 2,
+                    DType::Int8 => 2,
+                    _ => 3,
                 };
-                let code = kind + 3 * (shape.len() as u8 - 1);
+                let code = kind + 4 * (shape.len() as u8 - 1);
                 let mut input = vec![code];
                 shape
                     .iter()

@@ -46,6 +46,8 @@ pub struct Storage {
     pub levels: Vec<LevelStorage>,
     /// The renderer's tensors (`int8`: rank-2-and-up tensors int8, biases f16).
     pub weights: DType,
+    /// Tensors stored otherwise than `weights`, by name (`int4` for large inner layers).
+    pub tensor_dtypes: BTreeMap<String, DType>,
 }
 
 impl Storage {
@@ -54,6 +56,7 @@ impl Storage {
         Storage {
             levels: Vec::new(),
             weights: dtype,
+            tensor_dtypes: BTreeMap::new(),
         }
     }
 
@@ -66,20 +69,32 @@ impl Storage {
             } else {
                 DType::Int8
             },
+            tensor_dtypes: BTreeMap::new(),
         }
     }
 
     /// Short text: `f16`, `q8`, `q4` when uniform, else the levels and weights.
     pub fn describe(&self) -> String {
         let names: Vec<&str> = self.levels.iter().map(|l| l.name()).collect();
+        let overrides: Vec<String> = self
+            .tensor_dtypes
+            .iter()
+            .filter(|(_, d)| **d != self.weights)
+            .map(|(n, d)| format!("{n} {d}"))
+            .collect();
         format!(
-            "levels [{}], weights {}",
+            "levels [{}], weights {}{}",
             if names.is_empty() {
                 "f16".to_string()
             } else {
                 names.join(", ")
             },
-            self.weights
+            self.weights,
+            if overrides.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", overrides.join(", "))
+            }
         )
     }
 }
@@ -225,6 +240,7 @@ pub fn build_with(
         renderer,
         tensors,
         dtype,
+        tensor_dtypes: storage.tensor_dtypes.clone(),
     });
     let mat = b.add_material(MaterialDesc {
         name: Some("neural".into()),

@@ -10,7 +10,7 @@ use dnr_format::asset::LevelStorage;
 use dnr_format::model::DType;
 use dnr_format::Container;
 
-use crate::export::{self, Storage};
+use crate::export::{self, ExportNet, Storage};
 use crate::pipeline::{BakeError, ExportParts, Loaded};
 use crate::train::quantise::QatTarget;
 
@@ -61,6 +61,7 @@ impl StorageMode {
         Some(QatTarget {
             level_bits: vec![Some(bits); levels],
             int8_weights: true,
+            tensor_dtypes: Default::default(),
         })
     }
 }
@@ -336,6 +337,57 @@ fn validation_frames(loaded: &Loaded) -> Vec<crate::capture::Frame> {
 /// One option for one part: `(trial index or None for f16, bytes, cost)`.
 type PartOption = (Option<usize>, u64, f64);
 
+/// What one trial changes from all-f16 storage.
+#[derive(Clone, Debug)]
+enum Change {
+    /// Level `li` stored so.
+    Level(usize, LevelStorage),
+    /// The tensors outside `large` stored so (rank-1 ones stay f16).
+    Small(DType),
+    /// One large tensor stored so.
+    Tensor(String, DType),
+}
+
+/// All-f16 storage with `changes` applied; `large` tensors not changed stay f16.
+fn apply(levels: usize, large: &[String], changes: &[&Change]) -> Storage {
+    let mut s = Storage::uniform(LevelStorage::Exr, levels);
+    for c in changes {
+        match c {
+            Change::Level(li, enc) => s.levels[*li] = *enc,
+            Change::Small(d) => s.weights = d.clone(),
+            Change::Tensor(name, d) => {
+                s.tensor_dtypes.insert(name.clone(), d.clone());
+            }
+        }
+    }
+    for name in large {
+        s.tensor_dtypes.entry(name.clone()).or_insert(DType::F16);
+    }
+    s.tensor_dtypes.retain(|_, d| *d != s.weights);
+    s
+}
+
+/// The renderer's tensors of rank 2 or more holding at least [`LARGE_FRACTION`] of all
+/// weights: they are tried at `int4` each (the U-Net's inner stages, where most weights
+/// are and rounding costs least). Empty for a texture-only asset.
+fn large_tensors(net: &ExportNet) -> Vec<String> {
+    let tensors = match net {
+        ExportNet::None => return Vec::new(),
+        ExportNet::Mlp { tensors, .. } | ExportNet::Unet { tensors, .. } => tensors,
+    };
+    let total: usize = tensors.values().map(|(_, v)| v.len()).sum();
+    tensors
+        .iter()
+        .filter(|(_, (shape, v))| {
+            shape.len() >= 2 && v.len() as f64 >= total as f64 * LARGE_FRACTION
+        })
+        .map(|(name, _)| name.clone())
+        .collect()
+}
+
+/// Share of all weights that makes a tensor large enough to try alone at `int4`.
+const LARGE_FRACTION: f64 = 1.0 / 16.0;
+
 /// The option of each part with the fewest bytes in all whose costs (negative ones counted
 /// as 0) sum to at most `budget_db`; f16 (option 0, cost 0) always fits.
 fn fewest_bytes(options: &[Vec<PartOption>], budget_db: f64) -> Vec<usize> {
@@ -380,36 +432,35 @@ pub fn choose_auto(
 ) -> Result<AutoChoice, BakeError> {
     let n = parts.pyr.levels.len();
     let val = validation_frames(loaded);
-    let f16 = Storage::uniform(LevelStorage::Exr, n);
+    let large = large_tensors(parts.net);
+    let f16 = apply(n, &large, &[]);
     let mut trials: Vec<Trial> = Vec::new();
-    let mut storages: Vec<Storage> = Vec::new();
+    let mut changes: Vec<Change> = Vec::new();
     let base = measure(loaded, parts, &f16, &val)?;
     let mut options: Vec<Vec<PartOption>> = Vec::new();
     // Without validation views nothing can be measured: every option but f16 is left out.
-    let usable = |cost: f64| cost.is_finite();
-    for li in 0..n {
-        let l = &parts.pyr.levels[li];
-        let f16_bytes = base.bytes.levels.get(li).copied().unwrap_or(0);
+    // Each part's encodings are tried coarsest first, until one costs next to nothing.
+    let mut try_part = |part: String,
+                        f16_bytes: u64,
+                        encodings: Vec<(String, Change)>,
+                        bytes_of: &dyn Fn(&PartBytes) -> u64|
+     -> Result<Vec<PartOption>, BakeError> {
         let mut opts = vec![(None, f16_bytes, 0.0)];
-        for p in AUTO_PRECISIONS {
-            let Some(enc) = LevelStorage::png(p) else {
-                continue;
-            };
-            let mut trial = f16.clone();
-            trial.levels[li] = enc;
+        for (name, change) in encodings {
+            let trial = apply(n, &large, &[&change]);
             let m = measure(loaded, parts, &trial, &val)?;
             let cost = base.psnr - m.psnr;
-            let bytes = m.bytes.levels.get(li).copied().unwrap_or(0);
+            let bytes = bytes_of(&m.bytes);
             trials.push(Trial {
-                part: format!("level {li} ({}x{})", l.width, l.height),
-                encoding: enc.name().into(),
+                part: part.clone(),
+                encoding: name,
                 bytes,
                 f16_bytes,
                 cost_db: cost,
                 chosen: false,
             });
-            storages.push(trial);
-            if !usable(cost) {
+            changes.push(change);
+            if !cost.is_finite() {
                 break;
             }
             opts.push((Some(trials.len() - 1), bytes, cost));
@@ -417,29 +468,63 @@ pub fn choose_auto(
                 break;
             }
         }
-        options.push(opts);
+        Ok(opts)
+    };
+    for li in 0..n {
+        let l = &parts.pyr.levels[li];
+        let encodings = AUTO_PRECISIONS
+            .iter()
+            .filter_map(|&p| LevelStorage::png(p))
+            .map(|enc| (enc.name().to_string(), Change::Level(li, enc)))
+            .collect();
+        let f16_bytes = base.bytes.levels.get(li).copied().unwrap_or(0);
+        options.push(try_part(
+            format!("level {li} ({}x{})", l.width, l.height),
+            f16_bytes,
+            encodings,
+            &|b: &PartBytes| b.levels.get(li).copied().unwrap_or(0),
+        )?);
     }
     if base.bytes.weights > 0 {
-        let trial = Storage {
-            weights: DType::Int8,
-            ..f16.clone()
+        // Weight bytes are one buffer view: a part's bytes are the view's change from f16
+        // plus the part's own f16 bytes.
+        let tensors = match parts.net {
+            ExportNet::Mlp { tensors, .. } | ExportNet::Unet { tensors, .. } => Some(tensors),
+            ExportNet::None => None,
         };
-        let m = measure(loaded, parts, &trial, &val)?;
-        let cost = base.psnr - m.psnr;
-        trials.push(Trial {
-            part: "weights".into(),
-            encoding: "int8".into(),
-            bytes: m.bytes.weights,
-            f16_bytes: base.bytes.weights,
-            cost_db: cost,
-            chosen: false,
-        });
-        storages.push(trial);
-        let mut opts = vec![(None, base.bytes.weights, 0.0)];
-        if usable(cost) {
-            opts.push((Some(trials.len() - 1), m.bytes.weights, cost));
+        let f16_of = |names: &dyn Fn(&str) -> bool| -> u64 {
+            tensors.map_or(0, |t| {
+                t.iter()
+                    .filter(|(k, _)| names(k))
+                    .map(|(_, (_, v))| 2 * v.len() as u64)
+                    .sum()
+            })
+        };
+        let base_w = base.bytes.weights;
+        let small_f16 = f16_of(&|k| !large.iter().any(|l| l == k));
+        let part_name = if large.is_empty() {
+            "weights".to_string()
+        } else {
+            "weights (all but the large tensors)".to_string()
+        };
+        options.push(try_part(
+            part_name,
+            small_f16,
+            vec![("int8".into(), Change::Small(DType::Int8))],
+            &|b: &PartBytes| (b.weights + small_f16).saturating_sub(base_w),
+        )?);
+        for name in &large {
+            let own = f16_of(&|k| k == name);
+            options.push(try_part(
+                format!("tensor {name}"),
+                own,
+                vec![
+                    ("int4".into(), Change::Tensor(name.clone(), DType::Int4)),
+                    ("int8".into(), Change::Tensor(name.clone(), DType::Int8)),
+                ],
+                &|b: &PartBytes| (b.weights + own).saturating_sub(base_w),
+            )?);
         }
-        options.push(opts);
     }
     // Solve, measure together, and shrink the budget while the measured cost is over.
     let mut rounds = Vec::new();
@@ -452,18 +537,11 @@ pub fn choose_auto(
             .zip(&options)
             .filter_map(|(&k, o)| o.get(k).and_then(|opt| opt.0))
             .collect();
-        let mut s = f16.clone();
-        for &t in &picked {
-            let from = &storages[t];
-            for (li, l) in from.levels.iter().enumerate() {
-                if *l != LevelStorage::Exr {
-                    s.levels[li] = *l;
-                }
-            }
-            if from.weights != f16.weights {
-                s.weights = from.weights.clone();
-            }
-        }
+        let s = apply(
+            n,
+            &large,
+            &picked.iter().map(|&t| &changes[t]).collect::<Vec<_>>(),
+        );
         if picked.is_empty() {
             chosen = (s, picked);
             break;
@@ -505,6 +583,7 @@ pub fn qat_target_of(storage: &Storage) -> QatTarget {
     QatTarget {
         level_bits: storage.levels.iter().map(|l| l.precision()).collect(),
         int8_weights: storage.weights == DType::Int8,
+        tensor_dtypes: storage.tensor_dtypes.clone(),
     }
 }
 

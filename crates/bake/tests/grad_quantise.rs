@@ -92,6 +92,39 @@ fn texture_straight_through_gradient_is_the_derivative_at_the_stored_values() {
 
 #[test]
 fn int8_straight_through_gradient_is_the_derivative_at_the_stored_weights() {
+    straight_through_gradient_is_the_derivative_at_the_stored_weights(&QatTarget {
+        int8_weights: true,
+        ..QatTarget::default()
+    });
+}
+
+#[test]
+fn int4_straight_through_gradient_is_the_derivative_at_the_stored_weights() {
+    // The first layer int4, the rest int8, as auto stores a large inner tensor.
+    let p = MlpParams {
+        in_ch: 4,
+        hidden: vec![6],
+        out_ch: 3,
+    };
+    let first = p.tensor_specs()[0].0.clone();
+    let target = QatTarget {
+        int8_weights: true,
+        tensor_dtypes: [(first, dnr_format::model::DType::Int4)].into(),
+        ..QatTarget::default()
+    };
+    let full = MlpTrain::init(p.clone(), 4).unwrap();
+    let stored = quantised_weights(&p.tensor_specs(), &full.weights, &target);
+    // Each row of the int4 tensor holds at most 15 values: -7..=7 steps of its scale.
+    for row in stored[0].chunks(p.in_ch) {
+        let mut v: Vec<f32> = row.to_vec();
+        v.sort_by(f32::total_cmp);
+        v.dedup();
+        assert!(v.len() <= 15, "{row:?}");
+    }
+    straight_through_gradient_is_the_derivative_at_the_stored_weights(&target);
+}
+
+fn straight_through_gradient_is_the_derivative_at_the_stored_weights(target: &QatTarget) {
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     let p = MlpParams {
         in_ch: 4,
@@ -99,7 +132,7 @@ fn int8_straight_through_gradient_is_the_derivative_at_the_stored_weights() {
         out_ch: 3,
     };
     let full = MlpTrain::init(p.clone(), 4).unwrap();
-    let stored = quantised_weights(&p.tensor_specs(), &full.weights);
+    let stored = quantised_weights(&p.tensor_specs(), &full.weights, target);
     assert_ne!(stored[0], full.weights[0], "the weight matrix is rounded");
     assert_eq!(
         stored[1], full.weights[1],
@@ -206,6 +239,7 @@ fn fine_tuning_runs_on_the_rounding_and_updates_full_precision_values() {
     t.set_qat(Some(QatTarget {
         level_bits: vec![Some(4), Some(4)],
         int8_weights: true,
+        tensor_dtypes: Default::default(),
     }));
     let rounded = t.evaluate(&all[..2]).unwrap();
     assert_ne!(

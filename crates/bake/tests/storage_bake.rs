@@ -55,7 +55,7 @@ fn assert_clean(path: &Path) {
 /// Per level, finest first, the quantisation bits (`None`: EXR).
 type LevelBits = Vec<Option<u32>>;
 /// Per tensor, its shape and dtype.
-type TensorTypes = Vec<(Vec<u32>, DType)>;
+type TensorTypes = Vec<(String, Vec<u32>, DType)>;
 
 /// The stored encodings of the asset's first texture and first renderer.
 fn encodings(path: &Path) -> (LevelBits, TensorTypes) {
@@ -70,7 +70,7 @@ fn encodings(path: &Path) -> (LevelBits, TensorTypes) {
     let weights = ext.renderers[0]
         .weights
         .iter()
-        .map(|w| (w.shape.clone(), w.dtype.clone()))
+        .map(|w| (w.name.clone(), w.shape.clone(), w.dtype.clone()))
         .collect();
     (levels, weights)
 }
@@ -95,7 +95,7 @@ fn quantised_bakes_store_what_was_asked_and_report_every_storage() {
         assert_clean(&out.with_extension("f16.glb"));
         let (levels, weights) = encodings(&out);
         assert_eq!(levels, vec![Some(bits); levels.len()], "q{bits}");
-        for (shape, dtype) in &weights {
+        for (_, shape, dtype) in &weights {
             let want = if shape.len() >= 2 {
                 DType::Int8
             } else {
@@ -105,7 +105,7 @@ fn quantised_bakes_store_what_was_asked_and_report_every_storage() {
         }
         let (f16_levels, f16_weights) = encodings(&out.with_extension("f16.glb"));
         assert!(f16_levels.iter().all(Option::is_none));
-        assert!(f16_weights.iter().all(|(_, d)| *d == DType::F16));
+        assert!(f16_weights.iter().all(|(_, _, d)| *d == DType::F16));
 
         let storage = &report["storage"];
         assert_eq!(storage["mode"], format!("q{bits}"));
@@ -214,15 +214,33 @@ fn auto_storage_keeps_only_what_costs_less_than_the_bound() {
         .map(|n| precision(n).map(|p| if p <= 4 { 4 } else { 8 }))
         .collect();
     assert_eq!(containers, levels, "{names:?}");
-    let int8 = weights.iter().any(|(_, d)| *d == DType::Int8);
-    assert_eq!(storage["weights"] == "int8", int8, "{storage}");
+    // Each tensor is stored as its override says (the large tensors), else as the rest.
+    let qat = &storage["qat"];
+    let rest = if storage["weights"] == "int8" {
+        DType::Int8
+    } else {
+        DType::F16
+    };
+    for (name, _, dtype) in &weights {
+        let want = match qat["tensorDtypes"][name.as_str()].as_str() {
+            Some("int4") => DType::Int4,
+            Some("int8") => DType::Int8,
+            Some(other) => panic!("{name}: unexpected override {other}"),
+            None => rest.clone(),
+        };
+        assert_eq!(*dtype, want, "{name}: {storage}");
+    }
+    let int8 = rest == DType::Int8;
     // The choice was made on the unquantised state when the fine-tune started, and the
     // fine-tune imitated exactly that choice.
     let when = storage["measuredOn"]["when"].as_str().unwrap_or("");
     assert!(when.starts_with("start of the fine-tune"), "{storage}");
-    let qat = &storage["qat"];
     if qat.is_null() {
         assert!(names.iter().all(|s| *s == "f16") && !int8, "{storage}");
+        assert!(
+            weights.iter().all(|(_, _, d)| *d == DType::F16),
+            "{storage}"
+        );
     } else {
         let bits: Vec<Option<u32>> = qat["levelBits"]
             .as_array()
@@ -246,7 +264,7 @@ fn f16_bakes_write_revision_1_0_and_measure_nothing_more() {
     assert_clean(&out);
     let (levels, weights) = encodings(&out);
     assert!(levels.iter().all(Option::is_none));
-    assert!(weights.iter().all(|(_, d)| *d == DType::F16));
+    assert!(weights.iter().all(|(_, _, d)| *d == DType::F16));
     let storage = &report["storage"];
     assert_eq!(storage["qat"], Value::Null);
     assert_eq!(storage["variants"].as_array().map(Vec::len), Some(0));

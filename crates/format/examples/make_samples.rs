@@ -103,6 +103,7 @@ pub fn reference_cameras() -> Vec<(&'static str, Vec<RefCamera>)> {
         "valid/mlp_q8_levels.glb",
         "valid/mlp_q4_levels.glb",
         "valid/unet_int8_weights.glb",
+        "valid/mlp_int4_weights.glb",
     ]
     .into_iter()
     .map(|s| (s, quad()))
@@ -256,6 +257,7 @@ fn single(seed: u64, o: One) -> Res<Container> {
         renderer: o.renderer,
         tensors,
         dtype: o.dtype,
+        tensor_dtypes: Default::default(),
     });
     let m = b.add_material(MaterialDesc {
         name: Some("neural".into()),
@@ -318,12 +320,14 @@ fn scene(seed: u64) -> Res<Container> {
         tensors: tensors(&mut rng, &r0)?,
         renderer: r0,
         dtype: DType::F16,
+        tensor_dtypes: Default::default(),
     });
     let r1 = Renderer::mlp(19, 4, vec![6]);
     let r1 = b.add_renderer(RendererDesc {
         tensors: tensors(&mut rng, &r1)?,
         renderer: r1,
         dtype: DType::F32,
+        tensor_dtypes: Default::default(),
     });
     let m0 = b.add_material(MaterialDesc {
         name: Some("plain".into()),
@@ -473,9 +477,9 @@ fn raw_png(w: u32, h: u32, color: png::ColorType, depth: png::BitDepth) -> Res<V
     Ok(out)
 }
 
-/// Invalid samples of revision 1.1's quantised storage, derived from the valid `q8` (level 0
-/// is 13x10, 6 channels: a 13x20 PNG) and `int8` samples.
-fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
+/// Invalid samples of revisions 1.1 and 1.2's quantised storage, derived from the valid `q8`
+/// (level 0 is 13x10, 6 channels: a 13x20 PNG), `int8` and `int4` samples.
+fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8], int4: &[u8]) -> Res<()> {
     let level = |v: &mut Value| -> Value { ext(v)["neuralTextures"][0]["levels"][0].clone() };
     let set_q = |v: &mut Value, key: &str, value: Value| {
         ext(v)["neuralTextures"][0]["levels"][0]["quantization"][key] = value;
@@ -573,10 +577,10 @@ fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
             &[code],
         )?;
     }
-    // int8: replace the first row scale of the first int8 tensor, with a matching CRC so only
-    // the scale is wrong: 0, and f32::MAX (finite, but scale * q overflows).
-    let set_row0_scale = |scale: f32| {
-        edit(int8, move |v, bin| {
+    // int8 and int4: replace the first row scale of the first tensor, with a matching CRC so
+    // only the scale is wrong: 0, NaN, and f32::MAX (finite, but scale * q overflows).
+    let set_row0_scale = |src: &[u8], value_bytes: fn(usize) -> usize, scale: f32| {
+        edit(src, move |v, bin| {
             let d = ext(v)["renderers"][0]["weights"][0].clone();
             let view = &v["bufferViews"][as_usize(&d["bufferView"])];
             let start = as_usize(&view["byteOffset"]) + as_usize(&d["byteOffset"]);
@@ -584,31 +588,62 @@ fn quantised_invalid(w: &mut Writer<'_>, q8: &[u8], int8: &[u8]) -> Res<()> {
                 .as_array()
                 .map_or(0, |s| s.iter().map(as_usize).product());
             let rows = d["shape"][0].as_u64().unwrap_or(1) as usize;
-            let at = start + n.next_multiple_of(4);
+            let at = start + value_bytes(n).next_multiple_of(4);
             bin[at..at + 4].copy_from_slice(&scale.to_le_bytes());
             let crc = crc32fast::hash(&bin[start..at + 4 * rows]);
             ext(v)["renderers"][0]["weights"][0]["crc32"] = json!(crc);
         })
     };
+    let bytes8: fn(usize) -> usize = |n| n;
+    let bytes4: fn(usize) -> usize = |n| n.div_ceil(2);
     w.put(
         "invalid/int8_scale_zero.glb",
-        &set_row0_scale(0.0)?,
+        &set_row0_scale(int8, bytes8, 0.0)?,
         "revision 1.1: an int8 tensor's first row scale is 0 (its CRC-32 matches)",
         &["WEIGHTS_SCALE_INVALID"],
     )?;
     w.put(
         "invalid/int8_scale_overflow.glb",
-        &set_row0_scale(f32::MAX)?,
+        &set_row0_scale(int8, bytes8, f32::MAX)?,
         "revision 1.1: an int8 tensor's first row scale is f32::MAX, so scale * q overflows (its CRC-32 matches)",
         &["WEIGHTS_NON_FINITE"],
     )?;
+    w.put(
+        "invalid/int4_scale_zero.glb",
+        &set_row0_scale(int4, bytes4, 0.0)?,
+        "revision 1.2: an int4 tensor's first row scale is 0 (its CRC-32 matches)",
+        &["WEIGHTS_SCALE_INVALID"],
+    )?;
+    w.put(
+        "invalid/int4_scale_nan.glb",
+        &set_row0_scale(int4, bytes4, f32::NAN)?,
+        "revision 1.2: an int4 tensor's first row scale is NaN (its CRC-32 matches)",
+        &["WEIGHTS_SCALE_INVALID"],
+    )?;
+    w.put(
+        "invalid/int4_scale_overflow.glb",
+        &set_row0_scale(int4, bytes4, f32::MAX)?,
+        "revision 1.2: an int4 tensor's first row scale is f32::MAX, so scale * q overflows (its CRC-32 matches)",
+        &["WEIGHTS_NON_FINITE"],
+    )?;
+    // An int8 tensor's bytes read as int4: half the values, so the scales sit elsewhere and
+    // the CRC-32 covers other bytes.
     let out = edit(int8, |v, _| {
         ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("int4")
     })?;
     w.put(
-        "invalid/weights_dtype_int4.glb",
+        "invalid/int8_read_as_int4.glb",
         &out,
-        "a tensor's dtype is int4, which no revision defines",
+        "revision 1.2: an int8 tensor declared int4 (its bytes were written for int8: the CRC-32 covers fewer bytes and differs, and a scale read from the wrong bytes is not a finite positive float)",
+        &["WEIGHTS_CHECKSUM_MISMATCH", "WEIGHTS_SCALE_INVALID"],
+    )?;
+    let out = edit(int8, |v, _| {
+        ext(v)["renderers"][0]["weights"][0]["dtype"] = json!("int2")
+    })?;
+    w.put(
+        "invalid/weights_dtype_int2.glb",
+        &out,
+        "a tensor's dtype is int2, which no revision defines",
         &["WEIGHTS_DTYPE_UNKNOWN"],
     )?;
     Ok(())
@@ -828,6 +863,19 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         },
     )?;
     w.put("valid/unet_int8_weights.glb", &glb(&int8)?, "revision 1.1: unet widths [4, 8], transposedConv, instance norm, int8 weights with per-row f32 scales (biases f16), 2 EXR levels from 20x18", &[])?;
+
+    // 11 input channels and 7 hidden: rows of 11 nibbles start mid-byte, and the first
+    // tensor's 77 values leave the last byte's high nibble empty.
+    let int4 = single(
+        14,
+        One {
+            size: (12, 10),
+            compression: LC::Zip,
+            dtype: DType::Int4,
+            ..one(11, Renderer::mlp(11, 4, vec![7]))
+        },
+    )?;
+    w.put("valid/mlp_int4_weights.glb", &glb(&int4)?, "revision 1.2: mlp 11 -> [7] -> 4, int4 weights with per-row f32 scales (rows of 11 nibbles; 77 and 28 values; biases f16), 2 EXR levels from 12x10", &[])?;
 
     let sc = scene(9)?;
     w.put("valid/scene_multi_primitive.glb", &glb(&sc)?, "3 nodes (child with rotation + non-uniform scale), a 2-primitive mesh instanced twice, a pyramid without normals, primitives bound to 2 textures/renderers (none; mlp with SH degree 3, 19 channels, f32), CLAMP_TO_EDGE/MIRRORED_REPEAT, EXR RLE and PIZ", &[])?;
@@ -1310,6 +1358,7 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         renderer: Renderer::new(A::None, 3, 3),
         tensors: BTreeMap::new(),
         dtype: DType::F16,
+        tensor_dtypes: Default::default(),
     });
     let m = b.add_material(MaterialDesc {
         name: None,
@@ -1339,7 +1388,7 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
         &["BUFFER_INVALID"],
     )?;
 
-    quantised_invalid(&mut w, &glb(&q8)?, &glb(&int8)?)?;
+    quantised_invalid(&mut w, &glb(&q8)?, &glb(&int8)?, &glb(&int4)?)?;
 
     write_index(dir, &w.samples)?;
     Ok(w.samples)

@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::exr_codec::{decode_level, encode_level, LevelCompression, LevelExpect, TextureLevel};
 use crate::limits::Limits;
 use crate::model::{self, DType, PrimitiveExtension, Renderer, ViewDependence};
-use crate::weights::{crc32, decode_tensor, pack_tensors, TensorF32};
+use crate::weights::{crc32, decode_tensor, pack_tensors_each, TensorF32};
 use crate::EXTENSION_NAME;
 
 /// The `channels` a neural texture may declare (spec: `3 <= C <= 1024`; at least 3 because
@@ -699,8 +699,11 @@ pub struct RendererDesc {
     pub renderer: Renderer,
     /// Exactly the tensors [`architecture_tensors`] names.
     pub tensors: BTreeMap<String, TensorF32>,
-    /// Storage type of every tensor.
+    /// Storage type of every tensor not in `tensor_dtypes`.
     pub dtype: DType,
+    /// Storage types of single tensors, by name, overriding `dtype` (for instance `int4` for
+    /// the large inner layers of an `int8` network). Integer types keep rank-1 tensors `f16`.
+    pub tensor_dtypes: BTreeMap<String, DType>,
 }
 
 /// A neural binding (a neural texture paired with a renderer) and the fallback material made
@@ -1017,7 +1020,11 @@ impl AssetBuilder {
             if !ordered.is_empty() {
                 let view =
                     u32::try_from(bin.views.len()).map_err(|_| Error::invalid("bufferViews"))?;
-                let (blob, descriptors) = pack_tensors(ordered, &r.dtype, view)
+                let typed = ordered.into_iter().map(|(name, t)| {
+                    let d = r.tensor_dtypes.get(name).unwrap_or(&r.dtype).clone();
+                    (name, t, d)
+                });
+                let (blob, descriptors) = pack_tensors_each(typed, view)
                     .map_err(|e| Error::invalid(format!("renderer {ri}: {e}")))?;
                 bin.push(&blob, None)?;
                 spec.weights = descriptors;

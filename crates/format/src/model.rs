@@ -277,7 +277,8 @@ pub struct WeightTensor {
     pub name: String,
     /// Shape, row-major (C order).
     pub shape: Vec<u32>,
-    /// Element type: `f16` or `f32`, little-endian, or (revision 1.1) `int8`.
+    /// Element type: `f16` or `f32`, little-endian, or (revision 1.1) `int8`, or (revision
+    /// 1.2) `int4`.
     pub dtype: DType,
     /// Index of the bufferView holding the tensor.
     pub buffer_view: u32,
@@ -305,20 +306,20 @@ impl WeightTensor {
             .try_fold(1u64, |acc, &d| acc.checked_mul(u64::from(d)))
     }
 
-    /// Byte length of the tensor data, `None` on overflow or unknown dtype. For `int8` it
-    /// includes the padding and the per-row `f32` scales ([`int8_rows`]).
+    /// Byte length of the tensor data, `None` on overflow or unknown dtype. For `int8` and
+    /// `int4` it includes the padding and the per-row `f32` scales ([`int8_rows`]).
     pub fn byte_length(&self) -> Option<u64> {
         let n = self.element_count()?;
-        match self.dtype {
-            DType::Int8 => n
+        match self.dtype.integer_value_bytes(n) {
+            Some(values) => values
                 .next_multiple_of(4)
                 .checked_add(int8_rows(&self.shape).checked_mul(4)?),
-            _ => n.checked_mul(self.dtype.size_of()? as u64),
+            None => n.checked_mul(self.dtype.size_of()? as u64),
         }
     }
 }
 
-/// Number of `f32` scales of an `int8` tensor: one per index of the first axis (the output
+/// Number of `f32` scales of an `int8` or `int4` tensor: one per index of the first axis (the output
 /// channel of dense layers and convolutions), 1 for a scalar.
 pub fn int8_rows(shape: &[u32]) -> u64 {
     shape.first().map_or(1, |&d| u64::from(d))
@@ -420,6 +421,9 @@ string_enum! {
         F32 = "f32",
         /// Revision 1.1: signed 8-bit integers, then one `f32` scale per first-axis index.
         Int8 = "int8",
+        /// Revision 1.2: signed 4-bit integers, two per byte (low nibble first), then one
+        /// `f32` scale per first-axis index.
+        Int4 = "int4",
     }
 }
 
@@ -430,7 +434,29 @@ impl DType {
             DType::F16 => Some(2),
             DType::F32 => Some(4),
             DType::Int8 => Some(1),
+            // Two per byte: callers use `integer_value_bytes`.
+            DType::Int4 => Some(1),
             DType::Unknown(_) => None,
+        }
+    }
+
+    /// For the integer types, the bytes that `n` values take before the padding and scales
+    /// (`n` for `int8`, `ceil(n / 2)` for `int4`); `None` for the others.
+    pub fn integer_value_bytes(&self, n: u64) -> Option<u64> {
+        match self {
+            DType::Int8 => Some(n),
+            DType::Int4 => Some(n.div_ceil(2)),
+            _ => None,
+        }
+    }
+
+    /// The largest magnitude a writer stores in an integer type (127 or 7), `None` for the
+    /// others.
+    pub fn integer_top(&self) -> Option<f32> {
+        match self {
+            DType::Int8 => Some(127.0),
+            DType::Int4 => Some(7.0),
+            _ => None,
         }
     }
 }

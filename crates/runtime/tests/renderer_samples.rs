@@ -158,6 +158,7 @@ fn random_tensors(spec: &dnr_format::model::Renderer, seed: u64) -> RendererDesc
         renderer: spec.clone(),
         tensors,
         dtype: dnr_format::model::DType::F16,
+        tensor_dtypes: Default::default(),
     }
 }
 

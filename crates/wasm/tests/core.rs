@@ -179,6 +179,7 @@ fn quantised_samples_decode_and_render_as_the_runtime() {
         "valid/mlp_q8_levels.glb",
         "valid/mlp_q4_levels.glb",
         "valid/unet_int8_weights.glb",
+        "valid/mlp_int4_weights.glb",
     ] {
         let path = sample(rel);
         let l = Loaded::from_bytes(&read(rel)).unwrap();

@@ -410,6 +410,7 @@ mod tests {
             renderer: Spec::new(Architecture::None, 3, 3),
             tensors: Default::default(),
             dtype: DType::F16,
+            tensor_dtypes: Default::default(),
         });
         b.add_material(MaterialDesc {
             name: None,

@@ -354,9 +354,9 @@ impl Trainer {
         Cow::Owned(out)
     }
 
-    /// Whether the forward pass rounds the weights through `int8`.
-    fn qat_int8(&self) -> bool {
-        self.qat.as_ref().is_some_and(|q| q.int8_weights)
+    /// What the forward pass rounds the weights to, when it rounds any.
+    fn qat_weights(&self) -> Option<quantise::QatTarget> {
+        self.qat.clone().filter(quantise::QatTarget::rounds_weights)
     }
 
     /// `name -> (shape, values)` of the network's tensors as the forward pass reads them.
@@ -364,12 +364,14 @@ impl Trainer {
         &self,
         map: std::collections::BTreeMap<String, (Vec<usize>, Vec<f32>)>,
     ) -> std::collections::BTreeMap<String, (Vec<usize>, Vec<f32>)> {
-        if !self.qat_int8() {
+        let Some(target) = self.qat_weights() else {
             return map;
-        }
+        };
         map.into_iter()
             .map(|(k, (shape, mut data))| {
-                quantise::fake_int8(&shape, &mut data);
+                if let Some(d) = target.weight_dtype(&k) {
+                    quantise::fake_int(&shape, &mut data, &d);
+                }
                 (k, (shape, data))
             })
             .collect()
@@ -528,7 +530,7 @@ impl Trainer {
         // Forward to straight colour and alpha, composite on white as the target is, L1, and
         // backward to the feature image. During fine-tuning with int8 weights the network
         // runs on the rounded weights and their gradients update the full-precision ones.
-        let int8 = self.qat_int8();
+        let rounding = self.qat_weights();
         let (loss, mut dx) = match &mut self.net {
             Net::None => {
                 let colour: Vec<f32> = x.data[..3 * n].iter().map(|&t| t.clamp(0.0, 1.0)).collect();
@@ -563,8 +565,12 @@ impl Trainer {
                 (loss, dx)
             }
             Net::Unet { net, .. } => {
-                let full = int8.then(|| {
-                    let q = quantise::quantised_weights(&net.params.tensor_specs(), &net.weights);
+                let full = rounding.as_ref().map(|target| {
+                    let q = quantise::quantised_weights(
+                        &net.params.tensor_specs(),
+                        &net.weights,
+                        target,
+                    );
                     std::mem::replace(&mut net.weights, q)
                 });
                 let fwd = net.forward(&x);
@@ -585,8 +591,12 @@ impl Trainer {
             Net::Mlp { net, .. } => {
                 // Covered pixels only; the others are colour 0, alpha 0 (y = -1), constants.
                 let covered: Vec<bool> = v.gbuf.coverage.iter().map(|&c| c != 0.0).collect();
-                let full = int8.then(|| {
-                    let q = quantise::quantised_weights(&net.params.tensor_specs(), &net.weights);
+                let full = rounding.as_ref().map(|target| {
+                    let q = quantise::quantised_weights(
+                        &net.params.tensor_specs(),
+                        &net.weights,
+                        target,
+                    );
                     std::mem::replace(&mut net.weights, q)
                 });
                 let fwd = net.forward_frame(&x, &covered);

@@ -10,7 +10,10 @@
 //! [`REFIT_EVERY`] steps for training steps (the levels' range search is the costly part).
 
 use dnr_format::quant::{fake_quantise_hwc, fit_parameters_hwc};
-use dnr_format::weights::{int8_dequantise, int8_quantise};
+use std::collections::BTreeMap;
+
+use dnr_format::model::DType;
+use dnr_format::weights::{int8_dequantise, int_quantise};
 use dnr_runtime::texture::Pyramid;
 use serde::Serialize;
 
@@ -29,12 +32,34 @@ pub struct QatTarget {
     pub level_bits: Vec<Option<u32>>,
     /// Whether the tensors of rank 2 or more are stored `int8` (biases stay f16).
     pub int8_weights: bool,
+    /// Tensors stored otherwise, by name (`int4`, `int8` or `f16`, whatever `int8_weights`
+    /// says).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub tensor_dtypes: BTreeMap<String, DType>,
 }
 
 impl QatTarget {
     /// Whether it rounds nothing.
     pub fn is_identity(&self) -> bool {
-        !self.int8_weights && self.level_bits.iter().all(Option::is_none)
+        !self.rounds_weights() && self.level_bits.iter().all(Option::is_none)
+    }
+
+    /// Whether it rounds any weight tensor.
+    pub fn rounds_weights(&self) -> bool {
+        self.int8_weights
+            || self
+                .tensor_dtypes
+                .values()
+                .any(|d| d.integer_top().is_some())
+    }
+
+    /// How tensor `name` is stored when it is rounded: `int4` or `int8`; `None` when it is
+    /// stored as floats (not rounded here).
+    pub fn weight_dtype(&self, name: &str) -> Option<DType> {
+        match self.tensor_dtypes.get(name) {
+            Some(d) => d.integer_top().map(|_| d.clone()),
+            None => self.int8_weights.then_some(DType::Int8),
+        }
     }
 }
 
@@ -80,27 +105,41 @@ pub fn quantised_pyramid_with(pyr: &Pyramid, fits: &LevelFits) -> Pyramid {
 /// Rounds a tensor through `int8` storage in place (per first-axis row, as the exporter
 /// stores it); tensors of rank below 2 (biases, stored f16) are left as they are.
 pub fn fake_int8(shape: &[usize], data: &mut [f32]) {
+    fake_int(shape, data, &DType::Int8);
+}
+
+/// [`fake_int8`] for `int8` or `int4` (`dtype`), with the exporter's scales.
+pub fn fake_int(shape: &[usize], data: &mut [f32], dtype: &DType) {
+    let Some(top) = dtype.integer_top() else {
+        return;
+    };
     if shape.len() < 2 {
         return;
     }
     let shape32: Vec<u32> = shape.iter().map(|&d| d as u32).collect();
-    let scales = dnr_format::weights::int8_fit_scales(&shape32, data);
+    let scales = dnr_format::weights::int_fit_scales(&shape32, data, dtype);
     let per = (data.len() / scales.len().max(1)).max(1);
     for (i, v) in data.iter_mut().enumerate() {
         let s = scales[i / per];
-        *v = int8_dequantise(int8_quantise(*v, s), s);
+        *v = int8_dequantise(int_quantise(*v, s, top), s);
     }
 }
 
-/// The network's tensors as an `int8` asset stores them (`specs` gives each tensor's shape,
-/// in the order of `weights`).
-pub fn quantised_weights(specs: &[(String, Vec<usize>)], weights: &[Vec<f32>]) -> Vec<Vec<f32>> {
+/// The network's tensors as the asset stores them under `target` (`specs` gives each
+/// tensor's name and shape, in the order of `weights`).
+pub fn quantised_weights(
+    specs: &[(String, Vec<usize>)],
+    weights: &[Vec<f32>],
+    target: &QatTarget,
+) -> Vec<Vec<f32>> {
     specs
         .iter()
         .zip(weights)
-        .map(|((_, shape), w)| {
+        .map(|((name, shape), w)| {
             let mut q = w.clone();
-            fake_int8(shape, &mut q);
+            if let Some(d) = target.weight_dtype(name) {
+                fake_int(shape, &mut q, &d);
+            }
             q
         })
         .collect()

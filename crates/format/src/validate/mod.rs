@@ -879,7 +879,7 @@ fn check_renderer(
             ctx.report(
                 "WEIGHTS_DTYPE_UNKNOWN",
                 &p.key("dtype"),
-                format!("dtype `{}` is not f16, f32 or int8", w.dtype),
+                format!("dtype `{}` is not f16, f32, int8 or int4", w.dtype),
             );
             continue;
         }
@@ -949,8 +949,8 @@ fn check_renderer(
                 ),
             );
         }
-        if w.dtype == model::DType::Int8 {
-            let scales = crate::weights::int8_scales(bytes, &w.shape).unwrap_or_default();
+        if w.dtype.integer_top().is_some() {
+            let scales = crate::weights::int_scales(bytes, &w.shape, &w.dtype).unwrap_or_default();
             let bad = scales
                 .iter()
                 .filter(|s| !(s.is_finite() && **s > 0.0))
@@ -960,19 +960,19 @@ fn check_renderer(
                     "WEIGHTS_SCALE_INVALID",
                     &p,
                     format!(
-                        "int8 tensor `{}` has {bad} row scales that are not finite and above 0",
-                        w.name
+                        "{} tensor `{}` has {bad} row scales that are not finite and above 0",
+                        w.dtype, w.name
                     ),
                 );
             } else {
-                let overflows = crate::weights::int8_non_finite(bytes, &w.shape);
+                let overflows = crate::weights::int_non_finite(bytes, &w.shape, &w.dtype);
                 if overflows > 0 {
                     ctx.report(
                         "WEIGHTS_NON_FINITE",
                         &p,
                         format!(
-                            "int8 tensor `{}` has {overflows} values whose scale * q overflows f32",
-                            w.name
+                            "{} tensor `{}` has {overflows} values whose scale * q overflows f32",
+                            w.dtype, w.name
                         ),
                     );
                 }
@@ -1166,6 +1166,7 @@ mod tests {
                 renderer: model::Renderer::new(Architecture::None, 3, 3),
                 tensors: Default::default(),
                 dtype: DType::F16,
+                tensor_dtypes: Default::default(),
             });
             b.add_material(MaterialDesc {
                 name: None,

@@ -293,6 +293,7 @@ impl Renderer {
     ///     renderer: RendererSpec::new(Architecture::None, 3, 3),
     ///     tensors: Default::default(),
     ///     dtype: DType::F16,
+    ///     tensor_dtypes: Default::default(),
     /// });
     /// // Binding (texture 0, renderer 0) for every primitive whose fallback material is 0.
     /// b.add_material(MaterialDesc { name: None, neural_texture: 0, renderer: 0 });
@@ -438,6 +439,7 @@ impl Renderer {
     ///     renderer: RendererSpec::new(Architecture::None, 3, 3),
     ///     tensors: Default::default(),
     ///     dtype: DType::F16,
+    ///     tensor_dtypes: Default::default(),
     /// });
     /// b.add_material(MaterialDesc { name: None, neural_texture: 0, renderer: 0 });
     /// let renderer = Renderer::from_asset(&b.build()?)?;

@@ -87,6 +87,7 @@ pub fn none_renderer(channels: u32) -> RendererDesc {
         renderer: RendererSpec::new(Architecture::None, channels, 3),
         tensors: BTreeMap::new(),
         dtype: DType::F32,
+        tensor_dtypes: Default::default(),
     }
 }
 
@@ -118,6 +119,7 @@ pub fn unet_constant(channels: u32, bias: [f32; 4]) -> RendererDesc {
         ),
         tensors: t,
         dtype: DType::F32,
+        tensor_dtypes: Default::default(),
     }
 }
 
@@ -135,6 +137,7 @@ pub fn mlp_constant(channels: u32, bias: &[f32]) -> RendererDesc {
         renderer: RendererSpec::mlp(channels, out, vec![]),
         tensors: t,
         dtype: DType::F32,
+        tensor_dtypes: Default::default(),
     }
 }
 
