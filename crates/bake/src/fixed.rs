@@ -73,6 +73,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             &loaded,
             &ExportParts::of(&trainer, &net),
             opts.storage_bound_db,
+            true,
         )?;
         qat = Some(crate::storage::qat_target_of(&choice.storage)).filter(|t| !t.is_identity());
         storage_choice = Some(choice);

@@ -161,10 +161,11 @@ struct Args {
     write_unpruned: Option<PathBuf>,
     /// How the asset stores texture levels and weights: f16 (EXR levels, f16 weights; readable
     /// by every reader of the format), q8 or q4 (8- or 4-bit quantised PNG levels, int8
-    /// weights; format revision 1.1), or auto (per level and for the weights, the smallest
-    /// encoding whose validation PSNR cost stays under --storage-bound-db). Quantised storage
-    /// trains the last 15 % of the run through its rounding. The --report lists each choice
-    /// with its bytes and cost.
+    /// weights; format revision 1.1), or auto (the fewest bytes whose validation PSNR cost
+    /// stays under --storage-bound-db: per level a 3- to 8-bit grid in a 4- or 8-bit PNG, int8
+    /// weights, and int4 or int8 for each large tensor, revision 1.2 when int4 is chosen).
+    /// Quantised storage trains the last 15 % of the run through its rounding. The --report
+    /// lists each choice with its bytes and cost.
     #[arg(long, value_name = "STORAGE", default_value = "f16")]
     storage: dnr_bake::storage::StorageMode,
     /// Validation PSNR (dB) that --storage auto lets the smaller encodings cost.

@@ -233,6 +233,8 @@ pub struct StorageReport {
     pub levels: Vec<String>,
     /// `f16` or `int8` (biases stay f16).
     pub weights: String,
+    /// Tensors stored otherwise than `weights` (`int4` or `int8`).
+    pub tensor_dtypes: std::collections::BTreeMap<String, DType>,
     /// The storage the last part of training imitated, if any.
     pub qat: Option<QatTarget>,
     /// Auto's trials in order (empty for the fixed encodings).
@@ -243,6 +245,9 @@ pub struct StorageReport {
     /// The state auto's trial costs are measured against (auto only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measured_on: Option<MeasuredOn>,
+    /// Auto after a fine-tune: the bound checked on the final state.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub final_check: Option<FinalCheck>,
     /// With quantised storage, the same trained state in every uniform storage and the
     /// chosen one: bytes by part, validation and held-out test PSNR (empty for f16).
     pub variants: Vec<Variant>,
@@ -284,6 +289,24 @@ pub struct Variant {
 pub struct Combined {
     /// Each round: `(budget_db, storage, bytes of the levels and weights, measured cost)`.
     pub rounds: Vec<Round>,
+    /// The cost allowed before a fine-tune: the bound times [`FINE_TUNE_CREDIT`], or the
+    /// bound when no fine-tune follows.
+    pub accept_db: f64,
+    /// The storage within the bound before the fine-tune, kept in reserve (when the chosen
+    /// one is not).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub safe: Option<String>,
+}
+
+/// After the fine-tune: the chosen storage's validation cost against the f16 copy of the
+/// same final state, and what was written.
+#[derive(Clone, Debug, Serialize)]
+#[serde(rename_all = "camelCase")]
+pub struct FinalCheck {
+    /// Each storage checked, in order: `(storage, validation cost in dB)`.
+    pub checked: Vec<(String, f64)>,
+    /// The storage written: the first checked within the bound, else f16.
+    pub written: String,
 }
 
 /// One round of [`Combined`].
@@ -310,6 +333,13 @@ const NEGLIGIBLE_FRACTION: f64 = 0.1;
 /// Rounds of solving and measuring before auto settles for the last storage under the bound.
 const ROUNDS: usize = 4;
 
+/// Before a quantisation-aware fine-tune, auto may choose a storage that costs up to this
+/// many times the bound on the unquantised state: the fine-tune trains through exactly that
+/// rounding and wins most of the cost back. The written asset is then measured against the
+/// f16 copy of its own final state, and a storage within the bound before the fine-tune
+/// replaces it if the bound does not hold (DESIGN.md, "Storage").
+pub const FINE_TUNE_CREDIT: f64 = 2.0;
+
 /// Auto's choice, measured on one state: for each level (finest first) and for the weights,
 /// each encoding alone against all-f16 storage of that state; then the fewest bytes whose
 /// measured cost, all choices together, stays under `bound_db`.
@@ -317,6 +347,10 @@ const ROUNDS: usize = 4;
 pub struct AutoChoice {
     /// The storage chosen.
     pub storage: Storage,
+    /// With a fine-tune to follow: the fewest bytes measured within the bound itself (before
+    /// the fine-tune), stored instead if the chosen storage is over the bound after it.
+    /// `None` when the chosen storage is within the bound already.
+    pub safe: Option<Storage>,
     /// Every trial in order.
     pub trials: Vec<Trial>,
     /// The rounds that measured the choices together.
@@ -423,12 +457,15 @@ fn fewest_bytes(options: &[Vec<PartOption>], budget_db: f64) -> Vec<usize> {
 }
 
 /// Measures auto's trials on `parts` (see [`AutoChoice`]). Run at the start of the
-/// quantisation-aware fine-tune, the costs are those of the unquantised state, so the bound
-/// holds against what an f16 bake would write; the fine-tune then imitates what was chosen.
+/// quantisation-aware fine-tune (`fine_tune_follows`), the costs are those of the
+/// unquantised state and the choice may cost up to [`FINE_TUNE_CREDIT`] times the bound
+/// there; the fine-tune then imitates what was chosen, and [`choose`] checks the bound on the
+/// final state.
 pub fn choose_auto(
     loaded: &Loaded,
     parts: &ExportParts,
     bound_db: f64,
+    fine_tune_follows: bool,
 ) -> Result<AutoChoice, BakeError> {
     let n = parts.pyr.levels.len();
     let val = validation_frames(loaded);
@@ -526,11 +563,18 @@ pub fn choose_auto(
             )?);
         }
     }
-    // Solve, measure together, and shrink the budget while the measured cost is over.
+    // Solve, measure together, and shrink the budget while the measured cost is over: first
+    // to the credited bound (the choice), then to the bound itself (the safe storage).
+    let accept = if fine_tune_follows {
+        bound_db * FINE_TUNE_CREDIT
+    } else {
+        bound_db
+    };
     let mut rounds = Vec::new();
-    let mut budget = bound_db;
-    let mut chosen = (f16.clone(), Vec::new());
-    for _ in 0..ROUNDS {
+    let mut budget = accept;
+    let mut chosen: Option<(Storage, Vec<usize>)> = None;
+    let mut safe = (f16.clone(), Vec::new());
+    for _ in 0..2 * ROUNDS {
         let pick = fewest_bytes(&options, budget);
         let picked: Vec<usize> = pick
             .iter()
@@ -543,7 +587,7 @@ pub fn choose_auto(
             &picked.iter().map(|&t| &changes[t]).collect::<Vec<_>>(),
         );
         if picked.is_empty() {
-            chosen = (s, picked);
+            chosen.get_or_insert((s, picked));
             break;
         }
         let m = measure(loaded, parts, &s, &val)?;
@@ -554,9 +598,18 @@ pub fn choose_auto(
             bytes: m.bytes.level_total() + m.bytes.weights,
             cost_db: cost,
         });
-        if cost.is_finite() && cost <= bound_db {
-            chosen = (s, picked);
+        let within = |b: f64| cost.is_finite() && cost <= b;
+        if chosen.is_none() && within(accept) {
+            chosen = Some((s.clone(), picked.clone()));
+            budget = budget.min(bound_db);
+        }
+        if within(bound_db) {
+            safe = (s, picked);
             break;
+        }
+        if chosen.is_none() && rounds.len() == ROUNDS {
+            // Settle for the safe storage alone: as many rounds as without the credit.
+            budget = budget.min(bound_db);
         }
         // Parts' costs added up to less than they cost together: ask for less next time.
         let summed: f64 = pick
@@ -564,15 +617,23 @@ pub fn choose_auto(
             .zip(&options)
             .map(|(&k, o)| o.get(k).map_or(0.0, |opt| opt.2.max(0.0)))
             .sum();
-        budget = (summed * bound_db / cost.max(1e-9)).min(budget * 0.7);
+        let target = if chosen.is_none() { accept } else { bound_db };
+        budget = (summed * target / cost.max(1e-9)).min(budget * 0.7);
     }
-    for t in chosen.1 {
+    let (storage, picked) = chosen.unwrap_or_else(|| safe.clone());
+    for t in picked {
         trials[t].chosen = true;
     }
+    let safe = (safe.0 != storage).then_some(safe.0);
     Ok(AutoChoice {
-        storage: chosen.0,
+        combined: Combined {
+            rounds,
+            accept_db: accept,
+            safe: safe.as_ref().map(Storage::describe),
+        },
+        safe,
+        storage,
         trials,
-        combined: Combined { rounds },
         base_val_psnr: base.psnr,
     })
 }
@@ -605,7 +666,9 @@ pub fn choose(
     let mut trials = Vec::new();
     let mut combined = None;
     let mut measured_on = None;
-    let chosen = match mode {
+    // Auto after a fine-tune: the storages to check on the final state, in order.
+    let mut reserve: Vec<Storage> = Vec::new();
+    let mut chosen = match mode {
         StorageMode::F16 => f16.clone(),
         StorageMode::Q8 => Storage::uniform(LevelStorage::Q8, n),
         StorageMode::Q4 => Storage::uniform(LevelStorage::Q4, n),
@@ -618,10 +681,12 @@ pub fn choose(
                         when: "start of the fine-tune (unquantised)".into(),
                         val_psnr: p.base_val_psnr,
                     });
+                    reserve.extend(p.safe.clone());
+                    reserve.push(f16.clone());
                     p
                 }
                 None => {
-                    let p = choose_auto(loaded, parts, bound_db)?;
+                    let p = choose_auto(loaded, parts, bound_db, false)?;
                     measured_on = Some(MeasuredOn {
                         when: "end of training".into(),
                         val_psnr: p.base_val_psnr,
@@ -644,18 +709,44 @@ pub fn choose(
             ("f16", f16.clone()),
             ("q8", Storage::uniform(LevelStorage::Q8, n)),
             ("q4", Storage::uniform(LevelStorage::Q4, n)),
-            ("chosen", chosen.clone()),
         ]
     };
-    for (name, s) in compared {
-        let (bytes, psnr) = measure_on(loaded, parts, &s, &[&val, &loaded.capture.test])?;
-        variants.push(Variant {
+    let variant = |name: &str, s: &Storage| -> Result<Variant, BakeError> {
+        let (bytes, psnr) = measure_on(loaded, parts, s, &[&val, &loaded.capture.test])?;
+        Ok(Variant {
             name: name.into(),
             storage: s.describe(),
             bytes,
             val_psnr: psnr[0],
             test_psnr: psnr[1],
-        });
+        })
+    };
+    for (name, s) in &compared {
+        variants.push(variant(name, s)?);
+    }
+    let mut final_check = None;
+    if mode != StorageMode::F16 {
+        let mut last = variant("chosen", &chosen)?;
+        if !reserve.is_empty() {
+            // The fine-tune trained through the chosen rounding: check the bound on the final
+            // state, against its own f16 copy, and fall back while it does not hold.
+            let f16_val = variants[0].val_psnr;
+            let cost = |v: &Variant| f16_val - v.val_psnr;
+            let mut checked = vec![(chosen.describe(), cost(&last))];
+            for s in reserve {
+                if cost(&last).is_finite() && cost(&last) <= bound_db {
+                    break;
+                }
+                last = variant("chosen", &s)?;
+                checked.push((s.describe(), cost(&last)));
+                chosen = s;
+            }
+            final_check = Some(FinalCheck {
+                checked,
+                written: chosen.describe(),
+            });
+        }
+        variants.push(last);
     }
     let report = StorageReport {
         mode,
@@ -673,10 +764,12 @@ pub fn choose(
             })
             .collect(),
         weights: chosen.weights.to_string(),
+        tensor_dtypes: chosen.tensor_dtypes.clone(),
         qat,
         trials,
         combined,
         measured_on,
+        final_check,
         variants,
         seconds: t0.elapsed().as_secs_f64(),
     };
@@ -709,10 +802,21 @@ pub fn describe(r: &StorageReport) -> Vec<String> {
     if let Some(c) = &r.combined {
         for round in &c.rounds {
             out.push(format!(
-                "  together, within {:.3} dB summed: {} ({} bytes), costs {:.3} dB",
-                round.budget_db, round.storage, round.bytes, round.cost_db
+                "  together, within {:.3} dB summed: {} ({} bytes), costs {:.3} dB (allowed {:.3})",
+                round.budget_db, round.storage, round.bytes, round.cost_db, c.accept_db
             ));
         }
+        if let Some(safe) = &c.safe {
+            out.push(format!("  in reserve, within the bound: {safe}"));
+        }
+    }
+    if let Some(f) = &r.final_check {
+        for (s, cost) in &f.checked {
+            out.push(format!(
+                "  after the fine-tune: {s} costs {cost:.3} dB against its f16 copy"
+            ));
+        }
+        out.push(format!("  written: {}", f.written));
     }
     for v in &r.variants {
         out.push(format!(

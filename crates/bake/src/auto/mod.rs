@@ -528,8 +528,12 @@ fn train_to_end(
     let mut choice = None;
     if opts.storage == crate::storage::StorageMode::Auto {
         let net = tr.export_net();
-        let c =
-            crate::storage::choose_auto(loaded, &ExportParts::of(tr, &net), opts.storage_bound_db)?;
+        let c = crate::storage::choose_auto(
+            loaded,
+            &ExportParts::of(tr, &net),
+            opts.storage_bound_db,
+            true,
+        )?;
         *qat = Some(crate::storage::qat_target_of(&c.storage)).filter(|t| !t.is_identity());
         choice = Some(c);
     }

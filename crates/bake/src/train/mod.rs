@@ -174,6 +174,8 @@ pub struct Trainer {
     qat: Option<quantise::QatTarget>,
     /// The levels' fits the training steps round with, and the steps since they were fitted.
     qat_fits: Option<(quantise::LevelFits, u32)>,
+    /// The weights' scales during fine-tuning, refitted like the levels' ranges.
+    qat_weight_fits: Option<(Vec<quantise::TensorFit>, u32)>,
 }
 
 /// Wall seconds of the phases of [`Trainer::step`], summed over steps (what `dnr bench train`
@@ -201,6 +203,26 @@ impl PhaseSeconds {
 }
 
 /// Adds the seconds since `*t` to `acc` and restarts `*t`.
+/// The weights rounded for a fine-tuning step: scales refitted every
+/// [`quantise::REFIT_EVERY`] steps and reused in between (fitting int4's scales reads every
+/// weight fifteen times, several times a step's own cost on the balanced U-Net).
+fn step_weights(
+    cache: &mut Option<(Vec<quantise::TensorFit>, u32)>,
+    specs: &[(String, Vec<usize>)],
+    weights: &[Vec<f32>],
+    target: &quantise::QatTarget,
+) -> Vec<Vec<f32>> {
+    let (fits, age) = match cache.take() {
+        Some((fits, age)) if age < quantise::REFIT_EVERY && fits.len() == weights.len() => {
+            (fits, age)
+        }
+        _ => (quantise::fit_weights(specs, weights, target), 0),
+    };
+    let out = quantise::quantised_weights_with(weights, &fits);
+    *cache = Some((fits, age + 1));
+    out
+}
+
 fn lap(t: &mut Instant, acc: &mut f64) {
     let now = Instant::now();
     *acc += (now - *t).as_secs_f64();
@@ -311,6 +333,7 @@ impl Trainer {
             phase_seconds: PhaseSeconds::default(),
             qat: None,
             qat_fits: None,
+            qat_weight_fits: None,
         })
     }
 
@@ -320,6 +343,7 @@ impl Trainer {
     pub fn set_qat(&mut self, target: Option<quantise::QatTarget>) {
         self.qat = target.filter(|t| !t.is_identity());
         self.qat_fits = None;
+        self.qat_weight_fits = None;
     }
 
     /// The storage quantisation-aware fine-tuning imitates, if active.
@@ -566,11 +590,8 @@ impl Trainer {
             }
             Net::Unet { net, .. } => {
                 let full = rounding.as_ref().map(|target| {
-                    let q = quantise::quantised_weights(
-                        &net.params.tensor_specs(),
-                        &net.weights,
-                        target,
-                    );
+                    let specs = net.params.tensor_specs();
+                    let q = step_weights(&mut self.qat_weight_fits, &specs, &net.weights, target);
                     std::mem::replace(&mut net.weights, q)
                 });
                 let fwd = net.forward(&x);
@@ -592,11 +613,8 @@ impl Trainer {
                 // Covered pixels only; the others are colour 0, alpha 0 (y = -1), constants.
                 let covered: Vec<bool> = v.gbuf.coverage.iter().map(|&c| c != 0.0).collect();
                 let full = rounding.as_ref().map(|target| {
-                    let q = quantise::quantised_weights(
-                        &net.params.tensor_specs(),
-                        &net.weights,
-                        target,
-                    );
+                    let specs = net.params.tensor_specs();
+                    let q = step_weights(&mut self.qat_weight_fits, &specs, &net.weights, target);
                     std::mem::replace(&mut net.weights, q)
                 });
                 let fwd = net.forward_frame(&x, &covered);

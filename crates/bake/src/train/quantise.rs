@@ -110,19 +110,66 @@ pub fn fake_int8(shape: &[usize], data: &mut [f32]) {
 
 /// [`fake_int8`] for `int8` or `int4` (`dtype`), with the exporter's scales.
 pub fn fake_int(shape: &[usize], data: &mut [f32], dtype: &DType) {
-    let Some(top) = dtype.integer_top() else {
-        return;
-    };
+    if let Some(fit) = fit_tensor(shape, data, dtype) {
+        round_tensor(data, &fit);
+    }
+}
+
+/// One tensor's integer type and per-row scales, as the exporter fits them (`None`: not
+/// rounded, e.g. a bias or an f16 tensor).
+pub type TensorFit = Option<(DType, Vec<f32>)>;
+
+fn fit_tensor(shape: &[usize], data: &[f32], dtype: &DType) -> TensorFit {
+    dtype.integer_top()?;
     if shape.len() < 2 {
-        return;
+        return None;
     }
     let shape32: Vec<u32> = shape.iter().map(|&d| d as u32).collect();
     let scales = dnr_format::weights::int_fit_scales(&shape32, data, dtype);
+    Some((dtype.clone(), scales))
+}
+
+fn round_tensor(data: &mut [f32], (dtype, scales): &(DType, Vec<f32>)) {
+    let top = dtype.integer_top().unwrap_or(127.0);
     let per = (data.len() / scales.len().max(1)).max(1);
     for (i, v) in data.iter_mut().enumerate() {
         let s = scales[i / per];
         *v = int8_dequantise(int_quantise(*v, s, top), s);
     }
+}
+
+/// Fits the scales of every tensor `target` rounds (in parallel: int4's search over clipped
+/// ranges reads each tensor fifteen times).
+pub fn fit_weights(
+    specs: &[(String, Vec<usize>)],
+    weights: &[Vec<f32>],
+    target: &QatTarget,
+) -> Vec<TensorFit> {
+    use rayon::prelude::*;
+    specs
+        .par_iter()
+        .zip(weights.par_iter())
+        .map(|((name, shape), w)| {
+            target
+                .weight_dtype(name)
+                .and_then(|d| fit_tensor(shape, w, &d))
+        })
+        .collect()
+}
+
+/// The network's tensors rounded with `fits` (from [`fit_weights`]).
+pub fn quantised_weights_with(weights: &[Vec<f32>], fits: &[TensorFit]) -> Vec<Vec<f32>> {
+    weights
+        .iter()
+        .zip(fits)
+        .map(|(w, fit)| {
+            let mut q = w.clone();
+            if let Some(fit) = fit {
+                round_tensor(&mut q, fit);
+            }
+            q
+        })
+        .collect()
 }
 
 /// The network's tensors as the asset stores them under `target` (`specs` gives each
@@ -132,17 +179,7 @@ pub fn quantised_weights(
     weights: &[Vec<f32>],
     target: &QatTarget,
 ) -> Vec<Vec<f32>> {
-    specs
-        .iter()
-        .zip(weights)
-        .map(|((name, shape), w)| {
-            let mut q = w.clone();
-            if let Some(d) = target.weight_dtype(name) {
-                fake_int(shape, &mut q, &d);
-            }
-            q
-        })
-        .collect()
+    quantised_weights_with(weights, &fit_weights(specs, weights, target))
 }
 
 #[cfg(test)]
