@@ -84,7 +84,7 @@ pub fn int8_fit_scales(shape: &[u32], data: &[f32]) -> Vec<f32> {
 
 /// Fractions of a row's largest magnitude that `int4` scales may clip at (the largest `|q|`
 /// is 7): 15 candidates from the full range down to 0.3 of it.
-const INT4_CLIPS: [f32; 15] = [
+pub const INT4_CLIPS: [f32; 15] = [
     1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7, 0.65, 0.6, 0.55, 0.5, 0.45, 0.4, 0.35, 0.3,
 ];
 
