@@ -433,13 +433,13 @@ fn auto_preset_with_auto_storage_fine_tunes_through_the_rounding_and_keeps_the_b
         .as_array()
         .unwrap()
         .iter()
-        .map(|l| match l.as_str() {
-            Some("q8") => Some(8),
-            Some("q4") => Some(4),
-            _ => None,
-        })
+        // "qN" is an N-bit grid; "f16" has none.
+        .map(|l| l.as_str()?.strip_prefix('q')?.parse().ok())
         .collect();
-    if s["qat"].is_null() {
+    let checked = s["finalCheck"]["checked"].as_array().map_or(0, Vec::len);
+    if checked > 1 {
+        // Written in reserve: not what the fine-tune imitated.
+    } else if s["qat"].is_null() {
         assert!(
             !chosen_int8 && chosen_bits.iter().all(Option::is_none),
             "{s}"
