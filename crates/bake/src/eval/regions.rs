@@ -13,12 +13,22 @@
 //! Shares of the error that sit in `missed` and `excess` are what better features and a
 //! larger network cannot remove without alpha; `missed` far beyond the receptive field is
 //! what no network of that size can reach.
+//!
+//! Across those four, `silhouette` counts the photograph's anti-aliased outline: pixels of
+//! partial alpha ([`EDGE_ALPHA`]) and their 4-neighbours. The rasteriser samples one point
+//! per pixel, so the feature image has no partial coverage there; a large share of the
+//! error in this band (with an exact proxy) says the outline's anti-aliasing, not the
+//! surface, limits the result.
 
 use serde::Serialize;
 
 /// Upper bounds (pixels, chessboard distance) of the distance bins of missed pixels; the
 /// last bin holds everything farther.
 pub const DISTANCE_BINS: [u32; 5] = [1, 2, 4, 8, 16];
+
+/// Alpha strictly between these bounds is a partly covered (anti-aliased) pixel of the
+/// photograph's outline; 8-bit masks round fully covered or empty pixels to within 1/255.
+pub const EDGE_ALPHA: (f32, f32) = (0.02, 0.98);
 
 /// One region's pixels and squared error.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -63,6 +73,9 @@ pub struct Regions {
     /// distances up to [`DISTANCE_BINS`]`[k]` (and above the previous bound); the last holds
     /// the rest (and every missed pixel of a frame the proxy does not cover at all).
     pub missed_by_distance: Vec<Region>,
+    /// The photograph's outline band (overlaps the four regions above): pixels of partial
+    /// alpha and their 4-neighbours.
+    pub silhouette: Region,
 }
 
 impl Regions {
@@ -72,6 +85,7 @@ impl Regions {
         self.missed.merge(&o.missed);
         self.excess.merge(&o.excess);
         self.background.merge(&o.background);
+        self.silhouette.merge(&o.silhouette);
         if self.missed_by_distance.len() < o.missed_by_distance.len() {
             self.missed_by_distance
                 .resize(o.missed_by_distance.len(), Region::default());
@@ -120,6 +134,7 @@ pub fn split(
     assert!(render.len() == 3 * n && truth.len() == 3 * n);
     assert!(alpha.len() == n && covered.len() == n);
     let dist = distance_to_covered(covered, width, height);
+    let band = silhouette_band(alpha, width, height);
     let mut r = Regions {
         missed_by_distance: vec![Region::default(); DISTANCE_BINS.len() + 1],
         ..Regions::default()
@@ -134,6 +149,9 @@ pub fn split(
                 d * d
             })
             .sum();
+        if band[i] {
+            r.silhouette.add(se);
+        }
         match (alpha[i] > 0.5, covered[i]) {
             (true, true) => r.inside.add(se),
             (true, false) => {
@@ -149,6 +167,23 @@ pub fn split(
         }
     }
     r
+}
+
+/// Pixels of partial alpha ([`EDGE_ALPHA`]) and their 4-neighbours.
+pub fn silhouette_band(alpha: &[f32], width: usize, height: usize) -> Vec<bool> {
+    let edge = |i: usize| alpha[i] > EDGE_ALPHA.0 && alpha[i] < EDGE_ALPHA.1;
+    let mut band = vec![false; width * height];
+    for y in 0..height {
+        for x in 0..width {
+            let i = y * width + x;
+            band[i] = edge(i)
+                || (x > 0 && edge(i - 1))
+                || (x + 1 < width && edge(i + 1))
+                || (y > 0 && edge(i - width))
+                || (y + 1 < height && edge(i + width));
+        }
+    }
+    band
 }
 
 /// Chessboard distance of every pixel to the nearest covered pixel (0 on covered pixels,
@@ -221,6 +256,36 @@ mod tests {
     }
 
     #[test]
+    fn silhouette_band_is_partial_alpha_and_its_neighbours() {
+        // 5x1, partial alpha at x = 2 only: the band is x = 1..=3.
+        let alpha = [1.0, 1.0, 0.5, 0.0, 0.0];
+        let band = silhouette_band(&alpha, 5, 1);
+        assert_eq!(band, [false, true, true, true, false]);
+        // Its error is counted there as well as in its region.
+        let truth = [0u8; 15];
+        let mut render = [0u8; 15];
+        render[3 * 3] = 2; // x = 3: background, in the band
+        render[0] = 1; // x = 0: inside, not in the band
+        let covered = [true, true, false, false, false];
+        let r = split(&render, &truth, &alpha, &covered, None, 5, 1);
+        assert_eq!(
+            r.silhouette,
+            Region {
+                pixels: 3,
+                squared_error: 4.0
+            }
+        );
+        assert_eq!(r.background.squared_error, 4.0);
+        assert!((r.share(&r.silhouette) - 0.8).abs() < 1e-12);
+        // A vertical edge: the band follows rows too.
+        let alpha = [0.0, 0.3, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(
+            silhouette_band(&alpha, 2, 3),
+            [true, true, false, true, false, false]
+        );
+    }
+
+    #[test]
     fn error_lands_in_its_region() {
         // 4x1: inside, missed (1 px from cover), excess, background.
         let truth = [0u8; 12];
@@ -261,6 +326,7 @@ mod tests {
         );
         assert_eq!(r.missed_by_distance[0].pixels, 1);
         assert!((r.share(&r.missed) - 4.0 / 30.0).abs() < 1e-12);
+        assert_eq!(r.silhouette.pixels, 0, "hard alpha has no outline band");
         let invalid = [true, false, true, true];
         let r = split(&render, &truth, &alpha, &covered, Some(&invalid), 4, 1);
         assert_eq!(r.missed.pixels, 0);

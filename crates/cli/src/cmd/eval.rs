@@ -34,6 +34,8 @@ pub struct Args {
     /// Split the error by region of the proxy's silhouette: object pixels the proxy covers,
     /// object pixels it misses (by distance to the nearest covered pixel), covered pixels
     /// outside the object. Says whether a coarse proxy's error is in its surface or its outline.
+    /// Also the photograph's anti-aliased outline band (partial alpha and its neighbours),
+    /// across those regions: the error one sample per pixel leaves on silhouettes.
     #[arg(long)]
     pub regions: bool,
 }
@@ -140,6 +142,8 @@ fn print_regions(r: &Regions) {
     }
     row("covered, not object", &r.excess);
     row("background", &r.background);
+    // Overlaps the rows above: a share of the same total.
+    row("outline band (partial alpha, +1 px)", &r.silhouette);
 }
 
 /// Writes `bytes` to a temporary file beside `path`, then renames it.
