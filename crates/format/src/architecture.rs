@@ -3,7 +3,7 @@
 
 use crate::container::Problem;
 use crate::error::{Error, Result};
-use crate::model::{Architecture, Decoder, Normalization, Renderer};
+use crate::model::{Architecture, Decoder, Normalization, Renderer, MAX_SUPERSAMPLE};
 
 /// Most U-Net levels (`widths.len()`).
 pub const MAX_UNET_DEPTH: usize = 8;
@@ -38,6 +38,13 @@ pub fn renderer_problems(r: &Renderer) -> Vec<Problem> {
     }
     if r.input_channels == 0 {
         out.push(param("inputChannels is 0".into()));
+    }
+    if let Some(s) = r.supersample {
+        if !(1..=MAX_SUPERSAMPLE).contains(&s) {
+            out.push(param(format!(
+                "supersample is {s}, must be 1..={MAX_SUPERSAMPLE}"
+            )));
+        }
     }
     match r.architecture {
         Architecture::None => {

@@ -215,6 +215,10 @@ pub struct Renderer {
     /// Weight tensor descriptors; exactly the tensors the architecture names.
     #[serde(default)]
     pub weights: Vec<WeightTensor>,
+    /// Revision 1.3: subsamples per pixel side (`1..=`[`MAX_SUPERSAMPLE`]); the feature image
+    /// is the mean of `s x s` subsample features. None means 1 (writers omit it then).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supersample: Option<u32>,
     /// Extension-specific objects, kept verbatim.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extensions: Option<Map<String, Value>>,
@@ -226,7 +230,15 @@ pub struct Renderer {
     pub others: Map<String, Value>,
 }
 
+/// Largest `supersample` a renderer may declare (16 subsamples per pixel).
+pub const MAX_SUPERSAMPLE: u32 = 4;
+
 impl Renderer {
+    /// Subsamples per pixel side: `supersample`, or 1 when absent.
+    pub fn supersample_factor(&self) -> u32 {
+        self.supersample.unwrap_or(1)
+    }
+
     /// A renderer with the given architecture and channel counts and no parameters.
     pub fn new(architecture: Architecture, input_channels: u32, output_channels: u32) -> Self {
         Renderer {
@@ -238,6 +250,7 @@ impl Renderer {
             decoder: None,
             normalization: None,
             weights: Vec::new(),
+            supersample: None,
             extensions: None,
             extras: None,
             others: Map::new(),
