@@ -59,4 +59,5 @@ pub mod raster;
 pub mod renderer;
 pub mod scene;
 pub mod sh;
+pub mod supersample;
 pub mod texture;

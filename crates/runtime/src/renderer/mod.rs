@@ -44,6 +44,7 @@ use crate::nn::NnError;
 use crate::raster::{self, rasterize};
 use crate::scene::{from_gltf_slice, Primitive, Scene, SceneError};
 use crate::sh;
+use crate::supersample;
 use crate::texture::{Level, Pyramid, TextureError, Wrap};
 
 pub use image::{quantize, RgbaImage};
@@ -126,6 +127,8 @@ struct RendererSlot {
     net: Net,
     input_channels: usize,
     output_channels: usize,
+    /// Subsamples per pixel side of the feature image (1: the pixel centre).
+    supersample: usize,
 }
 
 /// What draws a scene primitive.
@@ -210,6 +213,7 @@ impl Renderer {
                     net,
                     input_channels: r.spec.input_channels as usize,
                     output_channels: r.spec.output_channels as usize,
+                    supersample: r.spec.supersample_factor() as usize,
                 })
             })
             .collect::<Result<Vec<_>, RendererError>>()?;
@@ -315,10 +319,40 @@ impl Renderer {
         height: u32,
     ) -> Result<RgbaImage, RendererError> {
         check_frame(u64::from(width), u64::from(height))?;
+        let factors = self.supersample_factors();
+        for &s in &factors {
+            check_frame(u64::from(width) * s as u64, u64::from(height) * s as u64)?;
+        }
         let cam = resized_camera(camera, width, height);
         // One burst of parallel kernels: the workers poll through it (see `shade`). The
-        // rasteriser's G-buffer is consistent and its size was checked above.
-        with_workers_awake(|| shade::shade(self, &rasterize(&self.scene, &cam)))
+        // rasteriser's G-buffers are consistent and their sizes were checked above.
+        with_workers_awake(|| {
+            let fine: Vec<GBuffer> = factors
+                .iter()
+                .map(|&s| rasterize(&self.scene, &supersample::subsample_camera(&cam, s)))
+                .collect();
+            let fine: Vec<&GBuffer> = fine.iter().collect();
+            shade::shade(self, &rasterize(&self.scene, &cam), &fine)
+        })
+    }
+
+    /// The distinct `supersample` factors above 1 of the renderers that some scene primitive
+    /// is bound to, ascending: the subsample G-buffers [`Renderer::shade_supersampled`]
+    /// needs (empty for assets without supersampling).
+    pub fn supersample_factors(&self) -> Vec<u32> {
+        let mut f: Vec<u32> = self
+            .owners
+            .iter()
+            .filter_map(|o| match o {
+                PrimOwner::Neural { renderer, .. } => Some(self.renderers[*renderer].supersample),
+                PrimOwner::Core => None,
+            })
+            .filter(|&s| s > 1)
+            .map(|s| s as u32)
+            .collect();
+        f.sort_unstable();
+        f.dedup();
+        f
     }
 
     /// Shades a G-buffer: the neural layer of a frame whose visibility the caller computed.
@@ -458,17 +492,47 @@ impl Renderer {
     /// assert_eq!(image.pixel(2, 0), Some([0.0; 4]));
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
+    ///
+    /// An asset with supersampled renderers ([`Renderer::supersample_factors`] not empty)
+    /// needs [`Renderer::shade_supersampled`]; here it is a [`RendererError::GBuffer`].
     pub fn shade(&self, gbuf: &GBuffer) -> Result<RgbaImage, RendererError> {
-        if !gbuf.is_consistent() {
-            return Err(RendererError::GBuffer(format!(
-                "the per-pixel vectors do not all hold width * height = {} x {} entries",
-                gbuf.width, gbuf.height
-            )));
+        self.shade_supersampled(gbuf, &[])
+    }
+
+    /// [`Renderer::shade`] for assets with supersampled renderers (spec "Supersampled
+    /// Features"): `subsamples` holds, for each factor `s` of
+    /// [`Renderer::supersample_factors`], the G-buffer of the same view at `s` times the
+    /// width and height (the camera's intrinsics scaled by `s`, as
+    /// [`crate::supersample::subsample_camera`] gives), filled as `gbuf` is. Pixel
+    /// ownership and coverage come from `gbuf`; the supersampled renderers' features are
+    /// the means of their subsamples' features.
+    pub fn shade_supersampled(
+        &self,
+        gbuf: &GBuffer,
+        subsamples: &[GBuffer],
+    ) -> Result<RgbaImage, RendererError> {
+        for g in std::iter::once(gbuf).chain(subsamples) {
+            if !g.is_consistent() {
+                return Err(RendererError::GBuffer(format!(
+                    "the per-pixel vectors do not all hold width * height = {} x {} entries",
+                    g.width, g.height
+                )));
+            }
+            check_frame(g.width as u64, g.height as u64)?;
         }
-        check_frame(gbuf.width as u64, gbuf.height as u64)?;
+        for s in self.supersample_factors() {
+            let (w, h) = (s as usize * gbuf.width, s as usize * gbuf.height);
+            if !subsamples.iter().any(|g| (g.width, g.height) == (w, h)) {
+                return Err(RendererError::GBuffer(format!(
+                    "the asset has supersample {s}: a subsample G-buffer of {w}x{h} ({s} \
+                     times the frame) is needed"
+                )));
+            }
+        }
+        let fine: Vec<&GBuffer> = subsamples.iter().collect();
         // Sampling, SH and the network fork many short kernels: the pool's workers poll
         // between them instead of sleeping.
-        with_workers_awake(|| shade::shade(self, gbuf))
+        with_workers_awake(|| shade::shade(self, gbuf, &fine))
     }
 }
 

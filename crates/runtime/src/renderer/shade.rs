@@ -28,9 +28,17 @@ struct Ownership {
     pixels: Vec<Vec<u32>>,
 }
 
-pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererError> {
+/// Shades the frame of `g`; `fine` holds one G-buffer per supersample factor in use, each
+/// `s` times `g`'s width and height (the caller checked them).
+pub(super) fn shade(
+    r: &Renderer,
+    g: &GBuffer,
+    fine: &[&GBuffer],
+) -> Result<RgbaImage, RendererError> {
     let n = g.len();
     let own = ownership(r, g)?;
+    // Subsample ownership, once per factor that a renderer with pixels needs.
+    let mut fine_own: Vec<(usize, &GBuffer, Ownership)> = Vec::new();
     let mut image = RgbaImage::new(g.width, g.height);
     // Premultiplied colour and alpha of the 4-channel U-Nets at background pixels,
     // allocated when the first one runs.
@@ -43,13 +51,47 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
         }
         let id = ri as u32;
         let run_err = |error| RendererError::Run { index: ri, error };
+        // A supersampled renderer's feature image, whole (C x H x W); None: features are
+        // sampled at pixel centres where needed.
+        let averaged = if slot.supersample > 1 {
+            let s = slot.supersample;
+            if !fine_own.iter().any(|(fs, ..)| *fs == s) {
+                let fg = fine
+                    .iter()
+                    .find(|f| f.width == s * g.width && f.height == s * g.height)
+                    .ok_or_else(|| {
+                        RendererError::GBuffer(format!(
+                            "renderer {ri} has supersample {s}: a subsample G-buffer of {}x{} \
+                             ({s} times the frame) is needed",
+                            s * g.width,
+                            s * g.height
+                        ))
+                    })?;
+                fine_own.push((s, fg, ownership(r, fg)?));
+            }
+            let (_, fg, fo) = fine_own
+                .iter()
+                .find(|(fs, ..)| *fs == s)
+                .ok_or_else(|| RendererError::GBuffer("subsample ownership".into()))?;
+            Some(supersampled_features(r, id, g, fg, fo, slot).map_err(run_err)?)
+        } else {
+            None
+        };
+        let pixel_feature = |i: usize, f: &mut [f32]| match &averaged {
+            Some(x) => {
+                for (k, v) in f.iter_mut().enumerate() {
+                    *v = x[k * n + i];
+                }
+            }
+            None => feature(r, g, i, own.texture[i], f),
+        };
         match &slot.net {
             Net::None => {
                 image.data.par_chunks_mut(4).enumerate().for_each_init(
                     || vec![0.0f32; slot.input_channels],
                     |f, (i, px)| {
                         if own.owner[i] == id {
-                            feature(r, g, i, own.texture[i], f);
+                            pixel_feature(i, f);
                             for k in 0..3 {
                                 px[k] = finite(f[k].clamp(0.0, 1.0));
                             }
@@ -65,9 +107,7 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
                 let mut hwc = vec![0.0f32; m * c];
                 hwc.par_chunks_mut(c)
                     .zip(pixels.par_iter())
-                    .for_each(|(f, &i)| {
-                        feature(r, g, i as usize, own.texture[i as usize], f);
-                    });
+                    .for_each(|(f, &i)| pixel_feature(i as usize, f));
                 let mut planar = vec![0.0f32; c * m];
                 for (p, f) in hwc.chunks_exact(c).enumerate() {
                     for (k, &v) in f.iter().enumerate() {
@@ -88,19 +128,10 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
             Net::Unet(unet) => {
                 let c = slot.input_channels;
                 let (w, h) = (g.width, g.height);
-                let mut x = vec![0.0f32; c * w * h];
-                for_rows_of_planes(&mut x, c, w, h, |y, planes| {
-                    let mut f = vec![0.0f32; c];
-                    for xx in 0..w {
-                        let i = y * w + xx;
-                        if own.owner[i] == id {
-                            feature(r, g, i, own.texture[i], &mut f);
-                            for (plane, &v) in planes.iter_mut().zip(&f) {
-                                plane[xx] = v;
-                            }
-                        }
-                    }
-                });
+                let x = match averaged {
+                    Some(x) => x,
+                    None => feature_image(r, id, g, &own, c),
+                };
                 let x = Tensor::from_vec(c, h, w, x).map_err(run_err)?;
                 let covered: Vec<bool> = if r.skip_uncovered {
                     own.owner.iter().map(|&o| o == id).collect()
@@ -172,6 +203,43 @@ pub(super) fn shade(r: &Renderer, g: &GBuffer) -> Result<RgbaImage, RendererErro
             });
     }
     Ok(image)
+}
+
+/// The feature image of renderer `id` sampled at the centres of `g`'s pixels: `X` where the
+/// renderer owns the pixel, 0 elsewhere (`C x H x W`).
+fn feature_image(r: &Renderer, id: u32, g: &GBuffer, own: &Ownership, c: usize) -> Vec<f32> {
+    let (w, h) = (g.width, g.height);
+    let mut x = vec![0.0f32; c * w * h];
+    for_rows_of_planes(&mut x, c, w, h, |y, planes| {
+        let mut f = vec![0.0f32; c];
+        for xx in 0..w {
+            let i = y * w + xx;
+            if own.owner[i] == id {
+                feature(r, g, i, own.texture[i], &mut f);
+                for (plane, &v) in planes.iter_mut().zip(&f) {
+                    plane[xx] = v;
+                }
+            }
+        }
+    });
+    x
+}
+
+/// The feature image of a supersampled renderer (spec "Supersampled Features"): the features
+/// of the subsamples it owns in `fine`, box-averaged to `g`'s pixels.
+fn supersampled_features(
+    r: &Renderer,
+    id: u32,
+    g: &GBuffer,
+    fine: &GBuffer,
+    fine_own: &Ownership,
+    slot: &super::RendererSlot,
+) -> Result<Vec<f32>, crate::nn::NnError> {
+    let c = slot.input_channels;
+    let sub = feature_image(r, id, fine, fine_own, c);
+    let mut x = vec![0.0f32; c * g.len()];
+    crate::supersample::box_mean(&sub, c, g.width, g.height, slot.supersample, &mut x)?;
+    Ok(x)
 }
 
 /// Assigns every pixel to the renderer of its visible primitive's binding, to core shading
