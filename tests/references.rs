@@ -131,8 +131,8 @@ fn committed_references_are_current_and_the_runtime_reproduces_them() {
     }
     assert_eq!(
         images,
-        3 * 13,
-        "three cameras for each of the thirteen valid samples"
+        3 * 15,
+        "three cameras for each of the fifteen valid samples"
     );
 }
 

@@ -459,7 +459,8 @@ def build_unet_renderer() -> dict:
 
 
 def build_upsample_renderer() -> dict:
-    """A small U-Net with the upsampleConv decoder, no normalisation, 3 outputs, f32."""
+    """A small U-Net with the upsampleConv decoder, no normalisation, 3 outputs, f32, and
+    (revision 1.3) supersampled features, 2 x 2 per pixel."""
     r = {"architecture": "unet", "inputChannels": 8, "outputChannels": 3, "widths": [8, 16],
          "decoder": "upsampleConv", "normalization": "none"}
     off, weights = 0, []
@@ -469,6 +470,7 @@ def build_upsample_renderer() -> dict:
                         "byteOffset": off, "crc32": zlib.crc32(bytes(nbytes))})
         off += nbytes
     r["weights"] = weights
+    r["supersample"] = 2
     return r
 
 
@@ -649,6 +651,8 @@ def validate(gltf: dict) -> list[str]:
             codes.append("RENDERER_OUTPUT_CHANNELS")
         else:
             bad = r["inputChannels"] < (3 if arch == "none" else 1)
+            # Revision 1.3; the schema's bounds, reported as a parameter error.
+            bad |= not 1 <= r.get("supersample", 1) <= 4
             if arch == "mlp":
                 bad |= "hidden" not in r or any(h < 1 for h in r["hidden"])
             if arch == "unet":
@@ -817,6 +821,11 @@ def mutations(base: dict):
          m(lambda g: (g.pop("extensions"), binding(g).update(texCoord=1))),
          ["JSON_SCHEMA", "TEXCOORD_MISSING"]),
         ("mlp without hidden", m(lambda g: rend(g).pop("hidden")), ["RENDERER_PARAMETER_INVALID"]),
+        ("supersample 4", m(lambda g: rend(g).update(supersample=4)), []),
+        ("supersample 0", m(lambda g: rend(g).update(supersample=0)),
+         ["RENDERER_PARAMETER_INVALID"]),
+        ("supersample 5", m(lambda g: rend(g).update(supersample=5)),
+         ["RENDERER_PARAMETER_INVALID"]),
         ("mlp without weights", m(lambda g: rend(g).pop("weights")), ["WEIGHTS_MISSING"]),
         ("2 channels", m(lambda g: (tex(g).update(channels=2), rend(g).update(inputChannels=2))),
          ["TEXTURE_CHANNELS_RANGE", "WEIGHTS_SHAPE_MISMATCH"]),
@@ -898,6 +907,12 @@ NEGATIVE_RENDERERS = [
                            "hidden": [], "weights": [{"name": "layers.0.bias", "shape": [3],
                                                       "dtype": "f32", "bufferView": 0,
                                                       "byteOffset": 2, "crc32": 0}]}),
+    ("supersample 0", {"architecture": "none", "inputChannels": 4, "outputChannels": 3,
+                       "supersample": 0}),
+    ("supersample 5", {"architecture": "none", "inputChannels": 4, "outputChannels": 3,
+                       "supersample": 5}),
+    ("supersample 1.5", {"architecture": "none", "inputChannels": 4, "outputChannels": 3,
+                         "supersample": 1.5}),
     ("crc32 too large", {"architecture": "mlp", "inputChannels": 4, "outputChannels": 3,
                          "hidden": [], "weights": [{"name": "layers.0.bias", "shape": [3],
                                                     "dtype": "f32", "bufferView": 0,
@@ -912,6 +927,9 @@ POSITIVE_RENDERERS = [
       "decoder": "pixelShuffle", "normalization": "none", "weights": []}),
     ("mlp with no hidden layer", {"architecture": "mlp", "inputChannels": 4, "outputChannels": 4,
                                   "hidden": [], "weights": []}),
+    ("supersample 4 (revision 1.3)", {"architecture": "mlp", "inputChannels": 4,
+                                      "outputChannels": 3, "hidden": [], "weights": [],
+                                      "supersample": 4}),
 ]
 
 PRIMITIVE_SCHEMA = "mesh.primitive.EXT_deferred_neural_rendering.schema.json"

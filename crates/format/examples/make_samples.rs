@@ -108,6 +108,21 @@ pub fn reference_cameras() -> Vec<(&'static str, Vec<RefCamera>)> {
     .into_iter()
     .map(|s| (s, quad()))
     .collect();
+    // The star of the revision 1.3 samples lies where the quad does: the same views, where
+    // its tips and texture reach pixel scale (front), below it (oblique, compressed; back,
+    // smaller).
+    let star = || {
+        let notes = [
+            "the star from the front: tips and rings near pixel scale",
+            "from above right: rings compressed below pixel scale; odd frame size",
+            "the back face, small: texels under half a pixel; odd frame size",
+        ];
+        quad()
+            .into_iter()
+            .zip(notes)
+            .map(|(c, note)| RefCamera { note, ..c })
+            .collect::<Vec<_>>()
+    };
     out.push((
         "valid/scene_multi_primitive.glb",
         vec![
@@ -140,6 +155,8 @@ pub fn reference_cameras() -> Vec<(&'static str, Vec<RefCamera>)> {
             },
         ],
     ));
+    out.push(("valid/unet_supersample2.glb", star()));
+    out.push(("valid/mlp_supersample3.glb", star()));
     out
 }
 
@@ -367,6 +384,213 @@ fn scene(seed: u64) -> Res<Container> {
         ..Node::default()
     });
     Ok(b.build_container()?)
+}
+
+// ---------------------------------------------------------------------------------------
+// Revision 1.3: supersampled renderers
+
+/// A five-pointed star in the z = 0 plane (outer radius 0.5, inner 0.2) as a fan of 10
+/// triangles: diagonal silhouettes and tips thinner than a pixel, where the pixel-centre
+/// sample aliases. Planar uv, so the texture runs on undistorted across the inner edges.
+/// Turned 7.5 degrees: no edge is axis-aligned, and no pixel centre or subsample (s = 2, 3)
+/// of the reference cameras lies within 1/3000 pixel of the silhouette, so rasterisers
+/// agree on every sample's coverage.
+fn star(material: usize) -> Primitive {
+    let mut positions = vec![[0.0f32, 0.0, 0.0]];
+    for k in 0..10 {
+        let r = if k % 2 == 0 { 0.5 } else { 0.2 };
+        // f64 trigonometry rounded to f32: libms that differ in f64's last place still
+        // give the same vertices.
+        let (sin, cos) = (97.5 + 36.0 * k as f64).to_radians().sin_cos();
+        positions.push([(r * cos) as f32, (r * sin) as f32, 0.0]);
+    }
+    Primitive {
+        normals: Some(vec![[0.0, 0.0, 1.0]; positions.len()]),
+        tex_coords: positions.iter().map(|p| [p[0] + 0.5, 0.5 - p[1]]).collect(),
+        indices: (0..10u32)
+            .flat_map(|k| [0, 1 + k, 1 + (k + 1) % 10])
+            .collect(),
+        positions,
+        material: Some(material),
+    }
+}
+
+/// Two levels, `w x h` then half that, of `channels` channels. Level 0's channels 0..3 hold
+/// a zone plate (concentric rings whose frequency grows to one cycle per two texels at the
+/// rim, phase-shifted per channel): detail near pixel scale in the reference views, where
+/// the pixel-centre sample makes moiré and the subsample mean greys it out. Channel 3 is 1
+/// on level 0 (the opacity the supersample U-Net reads); the others ramp gently across the
+/// texture. Level 1 adds a small smooth tint. Smooth values, not noise, keep the files small.
+fn zone_plate_levels(w: u32, h: u32, channels: u32) -> Vec<TextureLevel> {
+    let level = |w: u32, h: u32, f: &dyn Fn(f64, f64, u32) -> f64| {
+        let mut data = Vec::with_capacity((w * h * channels) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                // Texel centre in 0..1.
+                let (u, v) = ((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+                data.extend((0..channels).map(|c| f(u, v, c) as f32));
+            }
+        }
+        TextureLevel {
+            width: w,
+            height: h,
+            channels,
+            data,
+        }
+    };
+    let r_max = w.min(h) as f64 / 2.0;
+    let fine = level(w, h, &|u, v, c| {
+        let (dx, dy) = ((u - 0.5) * w as f64, (v - 0.5) * h as f64);
+        // Local frequency r / (2 r_max) cycles per texel at r texels from the centre.
+        let phase = std::f64::consts::PI * (dx * dx + dy * dy) / (2.0 * r_max);
+        match c {
+            0..=2 => 0.5 + 0.5 * (phase + 2.1 * c as f64).cos(),
+            3 => 1.0,
+            _ if c % 2 == 0 => 0.6 + 0.4 * u,
+            _ => 1.0 - 0.4 * v,
+        }
+    });
+    let coarse = level(w.div_ceil(2), h.div_ceil(2), &|u, v, c| match c {
+        3 => 0.0,
+        _ => 0.1 * (u - v) * if c % 2 == 0 { 1.0 } else { -1.0 },
+    });
+    vec![fine, coarse]
+}
+
+/// The star bound to one texture and one renderer (with its unlit fallback material).
+fn star_asset(
+    levels: Vec<TextureLevel>,
+    sh: Option<ViewDependence>,
+    renderer: Renderer,
+    tensors: BTreeMap<String, TensorF32>,
+    dtype: DType,
+) -> Res<Container> {
+    let mut b = AssetBuilder::new();
+    let t = b.add_neural_texture(NeuralTextureDesc {
+        levels,
+        wrap_s: WrapMode::ClampToEdge,
+        wrap_t: WrapMode::ClampToEdge,
+        view_dependence: sh,
+        compression: LevelCompression::Zip,
+        storage: Vec::new(),
+    });
+    let r = b.add_renderer(RendererDesc {
+        renderer,
+        tensors,
+        dtype,
+        tensor_dtypes: Default::default(),
+    });
+    let m = b.add_material(MaterialDesc {
+        name: Some("neural".into()),
+        neural_texture: t,
+        renderer: r,
+    });
+    let mesh = b.add_mesh(Some("star".into()), vec![star(m)]);
+    b.add_node(Node {
+        name: Some("star".into()),
+        mesh: Some(mesh),
+        ..Node::default()
+    });
+    Ok(b.build_container()?)
+}
+
+/// Index of `[j][k][ky][kx]` in a row-major `[_, n_k, 4, 4]` kernel.
+fn k4(j: usize, k: usize, n_k: usize, ky: usize, kx: usize) -> usize {
+    ((j * n_k + k) * 4 + ky) * 4 + kx
+}
+
+/// `unet` 8 -> [20, 8] -> 4 (transposedConv, instance norm) at `supersample` 2, 8 channels
+/// (0..3 colour, 3 opacity, 4..8 SH degree 1). Random weights would give alpha near 0.5
+/// everywhere and hide the silhouette, so the outer stage is designed: encoder.0 copies
+/// each 2x2 block of the colour and opacity channels into 20 channels (space to depth: for
+/// block offset (a, b), tap (1 + a, 1 + b) of the stride-2 4x4 kernel), opacity twice with
+/// opposite signs so that LeakyReLU(z) - LeakyReLU(-z) = 1.2 z keeps it linear through the
+/// instance norm; decoder.0's skip half puts each copy back at its offset (depth to space)
+/// as colour and alpha. Alpha then follows the mean opacity of a pixel's subsamples: partial
+/// at silhouettes with supersampling, 0 or 1 without. The SH channels tint the colour, and
+/// small random weights everywhere else (the inner stage, the deep half of decoder.0) keep
+/// it a generic network.
+fn supersample_unet(rng: &mut ChaCha8Rng) -> Res<(Renderer, BTreeMap<String, TensorF32>)> {
+    let (c, w0) = (8usize, 20usize);
+    let r = Renderer {
+        supersample: Some(2),
+        ..Renderer::unet(
+            c as u32,
+            4,
+            vec![w0 as u32, 8],
+            Decoder::TransposedConv,
+            Normalization::Instance,
+        )
+    };
+    let mut t = tensors(rng, &r)?;
+    for (name, scale) in [("encoder.0.weight", 0.05), ("decoder.0.weight", 0.1)] {
+        if let Some(x) = t.get_mut(name) {
+            x.data.iter_mut().for_each(|v| *v *= scale);
+        }
+    }
+    // Gains and biases for the reference views' coverage (about 15 % of the frame): alpha
+    // near 0 outside, near 1 inside; colour spread over most of 0..1.
+    let (gain_colour, bias_colour, gain_alpha, bias_alpha) = (0.45, -1.0, 1.4, -1.6);
+    for p in 0..4 {
+        let (a, b) = (p / 2, p % 2);
+        let base = p * 5;
+        let e0 = &mut t.get_mut("encoder.0.weight").ok_or("encoder.0")?.data;
+        for ch in 0..3 {
+            e0[k4(base + ch, ch, c, 1 + a, 1 + b)] += 1.0;
+            for sh in 4..8 {
+                e0[k4(base + ch, sh, c, 1 + a, 1 + b)] += 0.4 * (rng.random::<f32>() * 2.0 - 1.0);
+            }
+        }
+        e0[k4(base + 3, 3, c, 1 + a, 1 + b)] += 1.0;
+        e0[k4(base + 4, 3, c, 1 + a, 1 + b)] -= 1.0;
+        let d0 = &mut t.get_mut("decoder.0.weight").ok_or("decoder.0")?.data;
+        for ch in 0..3 {
+            d0[k4(w0 + base + ch, ch, 4, 1 + a, 1 + b)] += gain_colour;
+        }
+        d0[k4(w0 + base + 3, 3, 4, 1 + a, 1 + b)] += gain_alpha;
+        d0[k4(w0 + base + 4, 3, 4, 1 + a, 1 + b)] -= gain_alpha;
+    }
+    let bias = &mut t.get_mut("decoder.0.bias").ok_or("decoder.0.bias")?.data;
+    bias.copy_from_slice(&[bias_colour, bias_colour, bias_colour, bias_alpha]);
+    Ok((r, t))
+}
+
+/// `mlp` 6 -> [8] -> 3 at `supersample` 3. A random MLP of this size saturates to one
+/// colour and would hide the texture, so it is designed like [`supersample_unet`]: hidden
+/// units 0..6 carry channels 0..3 with both signs (LeakyReLU(z) - LeakyReLU(-z) = 1.2 z), the
+/// output maps them back to colour around 0.5, and units 6 and 7 and small random weights
+/// mix in channels 3..6. Edge pixels, whose centre is covered but some of whose subsamples
+/// are not (X = 0 there), darken in proportion.
+fn supersample_mlp(rng: &mut ChaCha8Rng) -> Res<(Renderer, BTreeMap<String, TensorF32>)> {
+    let r = Renderer {
+        supersample: Some(3),
+        ..Renderer::mlp(6, 3, vec![8])
+    };
+    let mut t = tensors(rng, &r)?;
+    for x in t.values_mut() {
+        x.data.iter_mut().for_each(|v| *v *= 0.1);
+    }
+    let gain = 1.6;
+    let l0 = &mut t.get_mut("layers.0.weight").ok_or("layers.0")?.data;
+    for ch in 0..3 {
+        l0[ch * 6 + ch] += 1.0;
+        l0[(3 + ch) * 6 + ch] -= 1.0;
+        for unit in 6..8 {
+            l0[unit * 6 + 3 + ch] += rng.random::<f32>() * 2.0 - 1.0;
+        }
+    }
+    let l1 = &mut t.get_mut("layers.1.weight").ok_or("layers.1")?.data;
+    for ch in 0..3 {
+        l1[ch * 8 + ch] += gain;
+        l1[ch * 8 + 3 + ch] -= gain;
+        // Units 6 and 7 (random mixes of channels 3..6) tint each colour a little.
+        l1[ch * 8 + 6] += 0.3 * (rng.random::<f32>() * 2.0 - 1.0);
+        l1[ch * 8 + 7] += 0.3 * (rng.random::<f32>() * 2.0 - 1.0);
+    }
+    let b1 = &mut t.get_mut("layers.1.bias").ok_or("layers.1.bias")?.data;
+    // 1.2 * gain * (x - 0.5): the zone plate's mid value to mid grey.
+    b1.iter_mut().for_each(|b| *b -= 0.6 * gain);
+    Ok((r, t))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -880,6 +1104,25 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     let sc = scene(9)?;
     w.put("valid/scene_multi_primitive.glb", &glb(&sc)?, "3 nodes (child with rotation + non-uniform scale), a 2-primitive mesh instanced twice, a pyramid without normals, primitives bound to 2 textures/renderers (none; mlp with SH degree 3, 19 channels, f32), CLAMP_TO_EDGE/MIRRORED_REPEAT, EXR RLE and PIZ", &[])?;
 
+    // ---- revision 1.3: supersampled features
+    let mut rng = ChaCha8Rng::seed_from_u64(15);
+    let lv = zone_plate_levels(64, 64, 8);
+    let (r, t) = supersample_unet(&mut rng)?;
+    let ss2 = star_asset(
+        lv,
+        Some(ViewDependence::spherical_harmonics(1, 4)),
+        r,
+        t,
+        DType::F16,
+    )?;
+    w.put("valid/unet_supersample2.glb", &glb(&ss2)?, "revision 1.3: unet widths [20, 8] at supersample 2, transposedConv, instance norm, RGBA, SH degree 1 on channels 4..8, f16; a star (diagonal silhouettes, sub-pixel tips) with a zone-plate texture (2 levels from 64x64) and weights designed so that alpha follows the subsamples' mean opacity", &[])?;
+
+    let mut rng = ChaCha8Rng::seed_from_u64(16);
+    let lv = zone_plate_levels(56, 56, 6);
+    let (r, t) = supersample_mlp(&mut rng)?;
+    let ss3 = star_asset(lv, None, r, t, DType::F16)?;
+    w.put("valid/mlp_supersample3.glb", &glb(&ss3)?, "revision 1.3: mlp hidden [8] at supersample 3 (9 subsamples, one at the pixel centre), RGB, f16; the star with a zone-plate texture (2 levels from 56x56)", &[])?;
+
     // ---- invalid, derived from the valid ones
     let base = glb(&mlp16)?;
     let half = &base[..base.len() / 2];
@@ -1389,6 +1632,19 @@ pub fn generate(dir: &Path) -> Res<Vec<Sample>> {
     )?;
 
     quantised_invalid(&mut w, &glb(&q8)?, &glb(&int8)?, &glb(&int4)?)?;
+
+    // From the small mlp sample rather than the supersampled ones: the check is the same.
+    for (value, what) in [(0, "0, below the minimum 1"), (5, "5, above the maximum 4")] {
+        let out = edit(&base, |v, _| {
+            ext(v)["renderers"][0]["supersample"] = json!(value)
+        })?;
+        w.put(
+            &format!("invalid/supersample_{value}.glb"),
+            &out,
+            &format!("revision 1.3: a renderer's supersample is {what}"),
+            &["RENDERER_PARAMETER_INVALID"],
+        )?;
+    }
 
     write_index(dir, &w.samples)?;
     Ok(w.samples)

@@ -231,4 +231,68 @@ mod tests {
         // 4 outputs stay valid for the networks.
         assert!(renderer_problems(&Renderer::mlp(3, 4, vec![])).is_empty());
     }
+
+    #[test]
+    fn supersample_range() {
+        let with = |s: Option<u32>| Renderer {
+            supersample: s,
+            ..Renderer::unet(
+                8,
+                4,
+                vec![4, 8],
+                Decoder::UpsampleConv,
+                Normalization::Instance,
+            )
+        };
+        assert_eq!(with(None).supersample_factor(), 1);
+        assert!(renderer_problems(&with(None)).is_empty());
+        for s in 1..=MAX_SUPERSAMPLE {
+            let r = with(Some(s));
+            assert!(renderer_problems(&r).is_empty(), "supersample {s}");
+            assert_eq!(r.supersample_factor(), s);
+            // The factor does not change the tensors.
+            assert_eq!(
+                architecture_tensors(&r).unwrap(),
+                architecture_tensors(&with(None)).unwrap()
+            );
+        }
+        for s in [0, MAX_SUPERSAMPLE + 1, u32::MAX] {
+            let codes: Vec<_> = renderer_problems(&with(Some(s)))
+                .iter()
+                .map(|p| p.code)
+                .collect();
+            assert_eq!(codes, ["RENDERER_PARAMETER_INVALID"], "supersample {s}");
+            assert!(architecture_tensors(&with(Some(s))).is_err());
+        }
+        // Checked for every architecture, `none` included.
+        let none = Renderer {
+            supersample: Some(5),
+            ..Renderer::new(Architecture::None, 3, 3)
+        };
+        assert_eq!(renderer_problems(&none).len(), 1);
+    }
+
+    #[test]
+    fn supersample_json_round_trip() {
+        let mut r = Renderer::mlp(6, 3, vec![8]);
+        let v = serde_json::to_value(&r).unwrap();
+        // Writers omit it when absent (a revision 1.2 renderer).
+        assert!(v.get("supersample").is_none(), "{v}");
+        assert_eq!(serde_json::from_value::<Renderer>(v).unwrap(), r);
+        r.supersample = Some(3);
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(v["supersample"], 3);
+        let back: Renderer = serde_json::from_value(v).unwrap();
+        assert_eq!(back.supersample, Some(3));
+        assert!(back.others.is_empty(), "read as the known property");
+        assert_eq!(back, r);
+        // Out-of-range values still read (the parameter check reports them).
+        let v = serde_json::json!({
+            "architecture": "none", "inputChannels": 3, "outputChannels": 3, "supersample": 0
+        });
+        assert_eq!(
+            serde_json::from_value::<Renderer>(v).unwrap().supersample,
+            Some(0)
+        );
+    }
 }
