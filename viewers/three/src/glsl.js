@@ -180,18 +180,53 @@ vec4 gb0At(int x, int y) { return texelFetch(uG0, ivec2(x, uFrame.y - 1 - y), 0)
 vec3 gb1At(int x, int y) { return texelFetch(uG1, ivec2(x, uFrame.y - 1 - y), 0).xyz; }
 `;
 
-/** Feature atlas of a U-Net renderer (padded frame; zero outside the frame and uncovered). */
-export function featureAtlasShader(rendererIndex, textures, channels) {
-  return `${HEADER}${GBUF}${OUT_TILE}${featureFunctions(textures, channels)}
+/**
+ * Supersampled features (spec, Supersampled Features): `featureMean(g, x, y)` is the mean of
+ * channels 4g..4g+3 of X over the uS x uS subsamples of image pixel (x, y), read from the
+ * G-buffer drawn at uS times the frame (uS0, uS1; bottom-up). A subsample whose primitive is
+ * not the renderer's adds 0. Summed row by row and scaled by uSScale = f32(1 / uS^2), as the
+ * dnr runtime's box mean does. With uS = 1 and the frame's own G-buffer (the fallback when
+ * the large one does not fit the GPU), it is the pixel-centre feature of owned pixels.
+ */
+function featureMeanFunction(rendererIndex) {
+  return `
+uniform sampler2D uS0;
+uniform sampler2D uS1;
+uniform int uS;
+uniform float uSScale;
+vec4 featureMean(int g, int x, int y) {
+  vec4 acc = vec4(0.0);
+  int top = uS * (uFrame.y - y) - 1;
+  for (int j = 0; j < uS; j++) {
+    for (int i = 0; i < uS; i++) {
+      ivec2 t = ivec2(uS * x + i, top - j);
+      vec4 gb0 = texelFetch(uS0, t, 0);
+      if (int(round(gb0.w)) == ${rendererIndex + 1}) acc += feature(g, gb0, texelFetch(uS1, t, 0).xyz);
+    }
+  }
+  return acc * uSScale;
+}
+`;
+}
+
+/**
+ * Feature atlas of a U-Net renderer (padded frame; zero outside the frame and uncovered).
+ * `supersampled`: every frame pixel gets its subsample mean instead, whatever owns its centre.
+ */
+export function featureAtlasShader(rendererIndex, textures, channels, supersampled = false) {
+  const body = supersampled
+    ? '  o = featureMean(g, x, y);'
+    : `  vec4 gb0 = gb0At(x, y);
+  if (int(round(gb0.w)) != ${rendererIndex + 1}) return;
+  o = feature(g, gb0, gb1At(x, y));`;
+  return `${HEADER}${GBUF}${OUT_TILE}${featureFunctions(textures, channels)}${supersampled ? featureMeanFunction(rendererIndex) : ''}
 out vec4 o;
 void main() {
   int g, x, y;
   outTile(g, x, y);
   o = vec4(0.0);
   if (g >= ${Math.ceil(channels / 4)} || x >= uFrame.x || y >= uFrame.y) return;
-  vec4 gb0 = gb0At(x, y);
-  if (int(round(gb0.w)) != ${rendererIndex + 1}) return;
-  o = feature(g, gb0, gb1At(x, y));
+${body}
 }
 `;
 }
@@ -199,13 +234,14 @@ void main() {
 /**
  * `none` and `mlp` in one pass over the frame: features, dense layers (weights in uW, the
  * layout of `denseLayout`), output transform. Uncovered pixels get 0 (the composite ignores
- * them). `dims` are the layer sizes [C, h1, ..., out].
+ * them). `dims` are the layer sizes [C, h1, ..., out]. `supersampled`: covered pixels take
+ * their subsample mean as features (coverage stays the pixel centre's).
  */
-export function pixelNetShader(rendererIndex, textures, arch, dims, layout) {
+export function pixelNetShader(rendererIndex, textures, arch, dims, layout, supersampled = false) {
   const groups = (c) => Math.ceil(c / 4);
   const C = dims[0];
   let body = `  vec4 a0[${groups(C)}];
-  for (int g = 0; g < ${groups(C)}; g++) a0[g] = feature(g, gb0, d);\n`;
+  for (int g = 0; g < ${groups(C)}; g++) a0[g] = ${supersampled ? 'featureMean(g, x, y)' : 'feature(g, gb0, d)'};\n`;
   if (arch === 'none') {
     body += `  o = vec4(clamp(a0[0].xyz, 0.0, 1.0), 1.0);\n`;
   } else {
@@ -225,7 +261,7 @@ export function pixelNetShader(rendererIndex, textures, arch, dims, layout) {
     body += `  vec4 t = a${last + 1}[0];
   o = vec4(0.5 * (t.xyz + 1.0), ${out === 4 ? '0.5 * (t.w + 1.0)' : '1.0'});\n`;
   }
-  return `${HEADER}${GBUF}${WEIGHT_FETCH}${LRELU}\n${TANH}\n${featureFunctions(textures, dims[0])}
+  return `${HEADER}${GBUF}${WEIGHT_FETCH}${LRELU}\n${TANH}\n${featureFunctions(textures, dims[0])}${supersampled ? featureMeanFunction(rendererIndex) : ''}
 out vec4 o;
 void main() {
   ivec2 p = ivec2(gl_FragCoord.xy);

@@ -3,10 +3,12 @@
 //
 // Frame (GPU path): a G-buffer pass through three's WebGLRenderer (the whole scene, bound
 // primitives writing uv / neural texture / renderer / local view direction, every other
-// surface marked "core"), then each network's fixed list of passes, the composite of the
-// renderers into the neural layer N (spec, Compositing Several Renderers), and N drawn over
-// the canvas with straight-alpha source-over. Render targets are allocated once per frame
-// size. Without float render targets, the wasm CPU renderer draws N instead.
+// surface marked "core"), one more at s times the frame's width and height for each
+// `supersample` s > 1 in use (the subsamples), then each network's fixed list of passes,
+// the composite of the renderers into the neural layer N (spec, Compositing Several
+// Renderers), and N drawn over the canvas with straight-alpha source-over. Render targets
+// are allocated once per frame size. Without float render targets, the wasm CPU renderer
+// draws N instead.
 
 import {
   BufferGeometry, Float32BufferAttribute, Mesh, OrthographicCamera, Scene, ShaderMaterial,
@@ -45,6 +47,14 @@ export function probeGPU(renderer) {
   if (status !== gl.FRAMEBUFFER_COMPLETE) return `an RGBA32F framebuffer is incomplete (0x${status.toString(16)})`;
   if (gl.getParameter(gl.MAX_DRAW_BUFFERS) < 2) return 'fewer than 2 draw buffers';
   return null;
+}
+
+/** G-buffer render target: two RGBA32F attachments and a depth buffer. */
+function gbufferTarget(width, height) {
+  return new WebGLRenderTarget(width, height, {
+    count: 2, type: FloatType, format: RGBAFormat, minFilter: NearestFilter, magFilter: NearestFilter,
+    depthBuffer: true, generateMipmaps: false,
+  });
 }
 
 function gbufferMaterial(side, uniforms, defines = {}) {
@@ -131,6 +141,11 @@ export class DNRNeuralLayer {
     const gl = renderer.getContext();
     this.maxSize = gl.getParameter(gl.MAX_TEXTURE_SIZE);
     this.maxLayers = gl.getParameter(gl.MAX_ARRAY_TEXTURE_LAYERS);
+    // Largest side of a G-buffer (colour textures, depth renderbuffer, viewport); a subsample
+    // G-buffer beyond it falls back to pixel-centre features.
+    const vp = gl.getParameter(gl.MAX_VIEWPORT_DIMS);
+    this.maxTargetSize = Math.min(this.maxSize, gl.getParameter(gl.MAX_RENDERBUFFER_SIZE), vp[0], vp[1]);
+    this.fine = new Map();
     this.quadScene = new Scene();
     const geo = new BufferGeometry();
     geo.setAttribute('position', new Float32BufferAttribute([-1, -1, 0, 3, -1, 0, -1, 3, 0], 3));
@@ -219,6 +234,7 @@ export class DNRNeuralLayer {
     for (const b of a.bound) { b.gbuffer?.dispose(); b.exactGeometry?.dispose(); }
     this.decoder.request({ op: 'drop', asset: a.cpuAsset }).catch(() => {});
     this.passes = null;
+    this._disposeFine();
     this.frameSize = [0, 0];
     if (this.assets.length === 0) { this.texCount = 0; this.rendCount = 0; }
   }
@@ -233,27 +249,52 @@ export class DNRNeuralLayer {
     for (const b of entry.bound) b.object.material = on ? this.hiddenMaterial : b.fallback;
   }
 
+  _disposeFine() {
+    for (const f of this.fine.values()) if (f.target !== this.gbuf) f.target.dispose();
+    this.fine.clear();
+  }
+
+  /**
+   * The subsample G-buffers `{ target, s }` of the distinct `supersample` factors s > 1 of
+   * `nets`, each s times the frame's width and height. One that exceeds the GPU's limits
+   * maps to the frame's own G-buffer with s = 1: its renderers get pixel-centre features,
+   * as a reader of revision 1.2 gives them (spec, Versioning and Unknown Values).
+   */
+  _ensureFine(nets, width, height) {
+    this._disposeFine();
+    const factors = [...new Set(nets.map((n) => n.supersample).filter((s) => s > 1))].sort((a, b) => a - b);
+    for (const s of factors) {
+      if (s * width > this.maxTargetSize || s * height > this.maxTargetSize) {
+        const ids = nets.filter((n) => n.supersample === s).map((n) => n.global).join(', ');
+        console.warn(`dnr: the ${s}x${s} subsample G-buffer of a ${width}x${height} frame (${s * width}x${s * height}) `
+          + `exceeds the GPU's ${this.maxTargetSize} limit; renderer ${ids} uses pixel-centre features at this size`);
+        this.fine.set(s, { target: this.gbuf, s: 1 });
+      } else {
+        this.fine.set(s, { target: gbufferTarget(s * width, s * height), s });
+      }
+    }
+  }
+
   _ensureFrame(width, height) {
     if (this.frameSize[0] === width && this.frameSize[1] === height && this.passes) return;
+    this._disposeFine();
     this.gbuf?.dispose();
     this.nTarget?.dispose();
     this.covRows?.dispose();
     this.covFlags?.dispose();
     this.frameSize = [width, height];
-    this.gbuf = new WebGLRenderTarget(width, height, {
-      count: 2, type: FloatType, format: RGBAFormat, minFilter: NearestFilter, magFilter: NearestFilter,
-      depthBuffer: true, generateMipmaps: false,
-    });
+    this.gbuf = gbufferTarget(width, height);
     this.nTarget = floatTarget(width, height);
     const nets = [];
     for (const a of this.assets) if (a.gpu) nets.push(...a.gpu.nets);
     for (const n of nets) n.resize(width, height);
+    this._ensureFine(nets, width, height);
     const flagGroups = Math.max(1, Math.ceil(this.rendCount / 4));
     this.covRows = floatTarget(flagGroups, height);
     this.covFlags = floatTarget(flagGroups, 1);
     // Per-frame pass list, fixed for this frame size.
     const list = [];
-    for (const n of nets) n.passes(list, this.gbuf);
+    for (const n of nets) n.passes(list, this.gbuf, this.fine.get(n.supersample));
     const renderers = [];
     for (const n of nets) renderers[n.global] = { present: true, backgroundAlpha: n.backgroundAlpha, net: n };
     for (let i = 0; i < this.rendCount; i++) renderers[i] ||= { present: false };
@@ -286,11 +327,17 @@ export class DNRNeuralLayer {
       for (const n of nets) {
         console.info(`dnr: renderer ${n.global} (${n.constructor.name.replace('GPU', '')}): ${n.passCount} passes per frame`);
       }
-      console.info(`dnr: ${width}x${height}: ${list.length} network and composite passes + 1 G-buffer pass: ${list.map((p) => p.name).join(', ')}`);
+      const g = 1 + [...this.fine.values()].filter((f) => f.s > 1).length;
+      console.info(`dnr: ${width}x${height}: ${list.length} network and composite passes + ${g} G-buffer pass${g > 1 ? 'es' : ''}: ${list.map((p) => p.name).join(', ')}`);
     }
   }
 
-  /** Draws the G-buffer of `scene` seen by `camera` into this.gbuf. */
+  /**
+   * Draws the G-buffer of `scene` seen by `camera` into this.gbuf and each subsample
+   * G-buffer: the same camera and projection, the viewport s times larger, so that fine
+   * pixel (s px + i, s py + j) has its centre at image point
+   * (px + (i + 0.5) / s, py + (j + 0.5) / s). Returns the number of passes drawn.
+   */
   _gbufferPass(scene, camera) {
     const r = this.renderer;
     const bound = new Map();
@@ -301,7 +348,6 @@ export class DNRNeuralLayer {
         bound.set(b.object, b);
         const u = b.gbuffer.uniforms;
         u.uInvMVP.value.multiplyMatrices(vp, b.object.matrixWorld).invert();
-        u.uViewport.value = this.frameSize;
       }
     }
     const saved = [];
@@ -334,14 +380,20 @@ export class DNRNeuralLayer {
     scene.background = null;
     scene.overrideMaterial = null;
     r.shadowMap.autoUpdate = false;
-    r.setRenderTarget(this.gbuf);
     r.setClearColor(0x000000, 0);
-    r.clear(true, true, true);
-    r.render(scene, camera);
+    const targets = [{ target: this.gbuf, s: 1 }, ...[...this.fine.values()].filter((f) => f.s > 1)];
+    for (const { target, s } of targets) {
+      const viewport = [s * this.frameSize[0], s * this.frameSize[1]];
+      for (const b of bound.values()) b.gbuffer.uniforms.uViewport.value = viewport;
+      r.setRenderTarget(target);
+      r.clear(true, true, true);
+      r.render(scene, camera);
+    }
     r.shadowMap.autoUpdate = shadowAuto;
     scene.background = background;
     scene.overrideMaterial = override;
     for (const [o, key, v] of saved) o[key] = v;
+    return targets.length;
   }
 
   /**
@@ -358,7 +410,7 @@ export class DNRNeuralLayer {
     this._ensureFrame(width, height);
     scene.updateMatrixWorld();
     if (camera.parent === null) camera.updateMatrixWorld();
-    this._gbufferPass(scene, camera);
+    const gbufferPasses = this._gbufferPass(scene, camera);
     for (const p of this.passes) {
       p.set();
       this.quad.material = p.material;
@@ -368,7 +420,7 @@ export class DNRNeuralLayer {
     r.setRenderTarget(prevTarget);
     r.setClearColor(clearColor, clearAlpha);
     r.autoClear = autoClear;
-    return this.passes.length + 1;
+    return this.passes.length + gbufferPasses;
   }
 
   /** The last computed layer: `height * width * 4` floats, rows top first. */

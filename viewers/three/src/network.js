@@ -13,6 +13,28 @@ import {
 
 const groupsOf = (c) => Math.ceil(c / 4);
 
+/** A renderer's `supersample` (spec revision 1.3; absent: 1). */
+export function supersampleOf(r) {
+  const s = r.supersample ?? 1;
+  return Number.isInteger(s) && s >= 1 ? s : 1;
+}
+
+/** Uniforms of a supersampled feature shader (glsl.js featureMeanFunction). */
+function supersampleUniforms() {
+  return { uS0: { value: null }, uS1: { value: null }, uS: { value: 1 }, uSScale: { value: 1 } };
+}
+
+/**
+ * Binds the subsample G-buffer `fine` = `{ target, s }` (s = 1: the frame's own G-buffer,
+ * when the large one does not fit the GPU).
+ */
+function bindSubsamples(m, fine) {
+  m.uniforms.uS0.value = fine.target.textures[0];
+  m.uniforms.uS1.value = fine.target.textures[1];
+  m.uniforms.uS.value = fine.s;
+  m.uniforms.uSScale.value = Math.fround(1 / (fine.s * fine.s));
+}
+
 /** A float render target without depth, nearest sampling. */
 export function floatTarget(width, height) {
   const rt = new WebGLRenderTarget(width, height, {
@@ -113,8 +135,11 @@ export class AssetGPU {
       const texUniforms = {};
       for (const t of used) texUniforms[`uT${texBase + t}`] = { value: this.textures[t].texture };
       const global = rendBase + ri;
-      if (r.architecture === 'unet') return new UNetGPU(r, tensors[ri], global, texList, texUniforms, maxSize);
-      return new PixelNetGPU(r, tensors[ri], global, texList, texUniforms);
+      const net = r.architecture === 'unet'
+        ? new UNetGPU(r, tensors[ri], global, texList, texUniforms, maxSize)
+        : new PixelNetGPU(r, tensors[ri], global, texList, texUniforms);
+      net.supersample = supersampleOf(r);
+      return net;
     });
   }
 
@@ -131,8 +156,10 @@ class PixelNetGPU {
     this.outChannels = r.outputChannels;
     this.global = global;
     const dims = [r.inputChannels, ...(r.hidden || []), r.outputChannels];
+    const supersampled = supersampleOf(r) > 1;
     const uniforms = {
       ...texUniforms, uG0: { value: null }, uG1: { value: null }, uFrame: { value: [0, 0] },
+      ...(supersampled ? supersampleUniforms() : {}),
     };
     let layout = null;
     if (this.arch === 'mlp') {
@@ -151,7 +178,7 @@ class PixelNetGPU {
       this.weights = weightTexture(new Float32Array(texels));
       uniforms.uW = { value: this.weights };
     }
-    this.material = passMaterial(pixelNetShader(global, texList, this.arch, dims, layout), uniforms);
+    this.material = passMaterial(pixelNetShader(global, texList, this.arch, dims, layout, supersampled), uniforms);
     this.passCount = 1;
   }
 
@@ -162,15 +189,19 @@ class PixelNetGPU {
     this.frame = [width, height];
   }
 
-  /** Appends the frame's passes. */
-  passes(list, gbuf) {
+  /**
+   * Appends the frame's passes. `fine`: the subsample G-buffer `{ target, s }` of a
+   * supersampled renderer.
+   */
+  passes(list, gbuf, fine) {
     const m = this.material;
     list.push({
-      name: `r${this.global} ${this.arch}`, material: m, target: this.out,
+      name: `r${this.global} ${this.arch}${fine ? ` (${fine.s}x${fine.s} subsamples)` : ''}`, material: m, target: this.out,
       set: () => {
         m.uniforms.uG0.value = gbuf.textures[0];
         m.uniforms.uG1.value = gbuf.textures[1];
         m.uniforms.uFrame.value = this.frame;
+        if (fine) bindSubsamples(m, fine);
       },
     });
   }
@@ -239,9 +270,10 @@ class UNetGPU {
     this.norm = r.normalization === 'instance';
     const D = this.D;
     const w = this.widths;
-    this.featureMat = passMaterial(featureAtlasShader(global, texList, this.C), {
+    const supersampled = supersampleOf(r) > 1;
+    this.featureMat = passMaterial(featureAtlasShader(global, texList, this.C, supersampled), {
       ...texUniforms, uG0: { value: null }, uG1: { value: null }, uFrame: { value: [0, 0] },
-      uOut: { value: [0, 0, 0] },
+      uOut: { value: [0, 0, 0] }, ...(supersampled ? supersampleUniforms() : {}),
     });
     // Encoders.
     this.enc = [];
@@ -351,15 +383,16 @@ class UNetGPU {
     });
   }
 
-  passes(list, gbuf) {
+  passes(list, gbuf, fine) {
     const f = this.featureMat;
     list.push({
-      name: `r${this.global} features`, material: f, target: this.x.rt,
+      name: `r${this.global} features${fine ? ` (${fine.s}x${fine.s} subsamples)` : ''}`, material: f, target: this.x.rt,
       set: () => {
         f.uniforms.uG0.value = gbuf.textures[0];
         f.uniforms.uG1.value = gbuf.textures[1];
         f.uniforms.uFrame.value = this.frame;
         f.uniforms.uOut.value = UNetGPU.geoOf(this.x);
+        if (fine) bindSubsamples(f, fine);
       },
     });
     for (let i = 0; i < this.D; i++) {

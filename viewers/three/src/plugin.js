@@ -74,6 +74,10 @@ export class DNRGLTFPlugin {
       handle.status = 'fallback';
       return 'fallback';
     }
+    // The wasm description lists no `supersample` (revision 1.3): take it from the JSON,
+    // which the validator has checked (absent: 1).
+    const renderers = json.extensions?.[EXTENSION]?.renderers || [];
+    decoded.desc.renderers.forEach((r, i) => { r.supersample ??= renderers[i]?.supersample ?? 1; });
     if (!this.layer || handle.bound.length === 0) {
       handle.status = 'fallback';
       return 'fallback';

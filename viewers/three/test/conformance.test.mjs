@@ -5,11 +5,11 @@
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { execFileSync } from 'node:child_process';
-import { mkdirSync, readFileSync, existsSync } from 'node:fs';
+import { mkdirSync, readFileSync, writeFileSync, existsSync } from 'node:fs';
 import { join, resolve } from 'node:path';
 import { fileURLToPath } from 'node:url';
 import { serve } from '../scripts/serve.mjs';
-import { launch, openHarness, decodePng, compare, fromB64, readJson, lookAt } from './lib.mjs';
+import { launch, openHarness, decodePng, compare, fromB64, readJson, lookAt, editGlbJson } from './lib.mjs';
 
 const here = resolve(fileURLToPath(new URL('..', import.meta.url)));
 const repo = resolve(here, '..', '..');
@@ -142,6 +142,35 @@ test('the forced CPU path gives the GPU result', async () => {
   await cpuPage.close();
   report('scene_multi_primitive', 'forced CPU path', c.name, compare(cpu, gpu));
   assert.deepEqual(cpu, decodePng(readFileSync(join(samples, c.png))).rgba, 'the wasm runtime reproduces the reference exactly');
+});
+
+const SUPERSAMPLED = 'valid/unet_supersample2.glb';
+test('a subsample G-buffer beyond the GPU limits falls back to pixel-centre features', { skip: !cameras[SUPERSAMPLED] }, async () => {
+  // What the fallback draws is the asset without `supersample` (a revision 1.2 reader's view).
+  const plain = join(out, 'unet_supersample2-s1.glb');
+  writeFileSync(plain, editGlbJson(readFileSync(join(samples, SUPERSAMPLED)), (j) => {
+    for (const r of j.extensions.EXT_deferred_neural_rendering.renderers) delete r.supersample;
+  }));
+  const c = cameras[SUPERSAMPLED][0];
+  const limited = await openHarness(browser, server.url);
+  await limited.evaluate((n) => harness.limitTargets(n), 2 * Math.max(c.width, c.height) - 1);
+  assert.equal((await limited.evaluate((u) => harness.load(u), `/samples/${SUPERSAMPLED}`)).status, 'gpu');
+  const gpu = fromB64((await limited.evaluate((k) => harness.gpu(k), c)).rgba);
+  const logs = await limited.evaluate(() => harness.logs);
+  assert.ok(logs.some((l) => l.startsWith('warn') && l.includes('2x2 subsample G-buffer') && l.includes('pixel-centre')), logs.join('\n'));
+  assert.deepEqual(limited.errors, []);
+  await limited.close();
+  const ref = dnrRender(plain, c, c.width, c.height, join(out, `render-unet_supersample2-s1-${c.name}.png`));
+  report(SUPERSAMPLED, 'dnr render without supersample (over the limit)', c.name, compare(ref, gpu));
+});
+
+test('the forced CPU path draws a supersampled sample as its reference', { skip: !cameras[SUPERSAMPLED] }, async () => {
+  const c = cameras[SUPERSAMPLED][0];
+  const cpuPage = await openHarness(browser, server.url, '?cpu');
+  assert.equal((await cpuPage.evaluate((u) => harness.load(u), `/samples/${SUPERSAMPLED}`)).status, 'cpu');
+  const cpu = fromB64((await cpuPage.evaluate((k) => harness.cpu(k), c)).rgba);
+  await cpuPage.close();
+  report(SUPERSAMPLED, 'forced CPU path vs reference', c.name, compare(decodePng(readFileSync(join(samples, c.png))).rgba, cpu));
 });
 
 test('an invalid sample shows the fallback and logs its codes', async () => {

@@ -143,3 +143,20 @@ export function lookAt(eye, target, fovY, w, h) {
 }
 
 export const readJson = (p) => JSON.parse(readFileSync(p, 'utf8'));
+
+/** A copy of a GLB whose JSON chunk `edit(json)` changed in place (the BIN chunk as it was). */
+export function editGlbJson(glb, edit) {
+  const jsonLen = glb.readUInt32LE(12);
+  const json = JSON.parse(glb.toString('utf8', 20, 20 + jsonLen));
+  edit(json);
+  let text = Buffer.from(JSON.stringify(json), 'utf8');
+  text = Buffer.concat([text, Buffer.alloc((4 - (text.length % 4)) % 4, 0x20)]);
+  const rest = glb.subarray(20 + jsonLen);
+  const header = Buffer.alloc(20);
+  header.write('glTF', 0, 'latin1');
+  header.writeUInt32LE(2, 4);
+  header.writeUInt32LE(20 + text.length + rest.length, 8);
+  header.writeUInt32LE(text.length, 12);
+  header.write('JSON', 16, 'latin1');
+  return Buffer.concat([header, text, rest]);
+}

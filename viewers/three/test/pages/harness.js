@@ -76,6 +76,12 @@ window.harness = {
     const passes = layer.computeLayer(scene, cam, k.width, k.height);
     return { passes, rgba: b64(quantize(layer.readLayer())) };
   },
+  /** Lowers the largest G-buffer side the layer allows (a GPU with smaller limits). */
+  limitTargets(n) {
+    layer.maxTargetSize = Math.min(layer.maxTargetSize, n);
+    layer.passes = null;
+    return layer.maxTargetSize;
+  },
   /** The G-buffer's attachment `i` after the last frame, rows bottom first. */
   gbuf(i) {
     const [w, h] = layer.frameSize;
