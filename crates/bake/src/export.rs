@@ -148,18 +148,29 @@ fn tensors_f32(
         .collect()
 }
 
-/// Builds the asset. `sh` is `(degree, first_channel)` when the texture is view dependent.
-/// Each primitive keeps its own node (its world matrix as TRS) so the local frame the view
-/// directions were trained in is the one a reader sees.
+/// Builds the asset. `sh` is `(degree, first_channel)` when the texture is view dependent;
+/// `supersample` is the subsamples per pixel side the network was trained on (written as the
+/// renderer's `supersample` when above 1). Each primitive keeps its own node (its world
+/// matrix as TRS) so the local frame the view directions were trained in is the one a
+/// reader sees.
 pub fn build(
     scene: &Scene,
     pyr: &Pyramid,
     sh: Option<(u32, u32)>,
     net: &ExportNet,
     out_ch: usize,
+    supersample: u32,
     dtype: DType,
 ) -> Result<AssetBuilder, ExportError> {
-    build_with(scene, pyr, sh, net, out_ch, &Storage::exr(dtype))
+    build_with(
+        scene,
+        pyr,
+        sh,
+        net,
+        out_ch,
+        supersample,
+        &Storage::exr(dtype),
+    )
 }
 
 /// [`build`] with any [`Storage`].
@@ -169,6 +180,7 @@ pub fn build_with(
     sh: Option<(u32, u32)>,
     net: &ExportNet,
     out_ch: usize,
+    supersample: u32,
     storage: &Storage,
 ) -> Result<AssetBuilder, ExportError> {
     let dtype = storage.weights.clone();
@@ -236,6 +248,8 @@ pub fn build_with(
             (r, tensors_f32(tensors)?)
         }
     };
+    let mut renderer = renderer;
+    renderer.supersample = (supersample > 1).then_some(supersample);
     let rend = b.add_renderer(RendererDesc {
         renderer,
         tensors,

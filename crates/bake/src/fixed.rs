@@ -14,6 +14,10 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let t_start = Instant::now();
     let loaded = pipeline::load(cfg, opts)?;
     let t_init = Instant::now();
+    let cfg = &TrainConfig {
+        supersample: loaded.supersample,
+        ..cfg.clone()
+    };
     let mut trainer = Trainer::new(cfg.clone(), loaded.fit())?;
     // The classical initialisation is part of learning the texture, so it counts against the
     // time budget and shows in the records' seconds (a fair equal-time comparison).

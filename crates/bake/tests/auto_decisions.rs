@@ -6,7 +6,7 @@ mod capture_common;
 use capture_common::shaded_sphere_capture;
 use dnr_bake::auto::{prune, touched_texels, view_dependence};
 use dnr_bake::capture::Capture;
-use dnr_bake::train::config::{Preset, TrainConfig};
+use dnr_bake::train::config::{Preset, TrainConfig, DEFAULT_SUPERSAMPLE};
 use dnr_bake::train::views::{self, View};
 use dnr_bake::train::Trainer;
 
@@ -14,7 +14,7 @@ fn views_of(specular: f32) -> (tempfile::TempDir, Capture, Vec<View>) {
     let dir = tempfile::tempdir().unwrap();
     shaded_sphere_capture(dir.path(), specular);
     let cap = Capture::load(dir.path(), &Default::default()).unwrap();
-    let v = views::prepare(&cap.mesh, &cap.train);
+    let v = views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE);
     (dir, cap, v)
 }
 
@@ -98,6 +98,7 @@ fn stripping_zeroed_channels_renders_the_same() {
             t.sh_layer(),
             net,
             t.out_ch,
+            t.cfg.supersample,
             dnr_format::model::DType::F32,
         )
         .unwrap();

@@ -208,7 +208,7 @@ fn masks_and_lens_validity_reach_the_loss() {
     tiny(dir.path());
     let cap = Capture::load(&dir.path().join("phone"), &LoadOptions::default()).unwrap();
     let f = &cap.train[0];
-    let v = View::new(&cap.mesh, f);
+    let v = View::new(&cap.mesh, f, 1);
     assert_eq!(v.valid, f.valid);
     let n = v.width() * v.height();
     // A renderer output; the loss must not see the invalid pixels' targets.

@@ -57,7 +57,7 @@ fn export_mlp(weight: Vec<f32>) -> ExportNet {
 fn export_err(pyr: &Pyramid, net: &ExportNet, dtype: DType) -> (String, std::path::PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("out.glb");
-    let b = export::build(&export_scene(), pyr, None, net, 3, dtype).unwrap();
+    let b = export::build(&export_scene(), pyr, None, net, 3, 1, dtype).unwrap();
     let e = export::write(&b, &path).expect_err("export should fail");
     assert!(!path.exists(), "a failed export left {}", path.display());
     (e.to_string(), path)
@@ -74,6 +74,7 @@ fn export_beyond_the_half_range_names_the_level_channel_or_tensor() {
         None,
         &export_mlp(ok_weights.clone()),
         3,
+        1,
         DType::F16,
     )
     .unwrap();

@@ -4,7 +4,7 @@
 mod capture_common;
 
 use dnr_bake::capture::{Capture, LoadOptions};
-use dnr_bake::train::config::{Arch, Preset, TrainConfig};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig, DEFAULT_SUPERSAMPLE};
 use dnr_bake::train::schedule::Schedule;
 use dnr_bake::train::views::{self, View};
 use dnr_bake::train::{run, RunState, Trainer};
@@ -12,7 +12,7 @@ use dnr_bake::train::{run, RunState, Trainer};
 fn sample_views() -> (Vec<View>, Vec<View>) {
     let dir = capture_common::sample_capture();
     let cap = Capture::load(&dir, &LoadOptions::default()).unwrap();
-    let all = views::prepare(&cap.mesh, &cap.train);
+    let all = views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE);
     // Every 8th view validates.
     let (mut fit, mut val) = (Vec::new(), Vec::new());
     for (i, v) in all.into_iter().enumerate() {

@@ -18,7 +18,7 @@ use dnr_bake::kernels::mlp::MlpTrain;
 use dnr_bake::kernels::sample::{sample_backward, sample_forward};
 use dnr_bake::kernels::sh::{modulate_backward, modulate_forward};
 use dnr_bake::train::checkpoint::Checkpoint;
-use dnr_bake::train::config::{Arch, Preset, TrainConfig};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig, DEFAULT_SUPERSAMPLE};
 use dnr_bake::train::views::{self, View};
 use dnr_bake::train::{photometric_l1, RunState, Trainer};
 use dnr_runtime::gbuffer::GBuffer;
@@ -155,6 +155,7 @@ fn view(r: &mut ChaCha8Rng, w: usize, h: usize) -> View {
             .collect(),
         has_alpha: true,
         valid: None,
+        fine: None,
     }
 }
 
@@ -383,8 +384,8 @@ fn short_mlp_bake_learns_exports_and_renders() {
     }
     let cap = load(dir.path());
     assert!(!cap.test.is_empty());
-    let train = views::prepare(&cap.mesh, &cap.train);
-    let test = views::prepare(&cap.mesh, &cap.test);
+    let train = views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE);
+    let test = views::prepare(&cap.mesh, &cap.test, DEFAULT_SUPERSAMPLE);
     let mut t = Trainer::new(tiny_cfg(60), &train).unwrap();
     assert_eq!(t.out_ch, 4, "the capture has masks: learned alpha");
     let before = t.evaluate(&test).unwrap();
@@ -416,6 +417,7 @@ fn short_mlp_bake_learns_exports_and_renders() {
         t.sh_layer(),
         &t.export_net(),
         t.out_ch,
+        t.cfg.supersample,
         dnr_format::model::DType::F32,
     )
     .unwrap();
@@ -443,7 +445,7 @@ fn short_mlp_bake_learns_exports_and_renders() {
 fn mlp_resume_is_bit_identical() {
     let dir = capture_common::simple_capture(6, 16);
     let cap = load(dir.path());
-    let train = views::prepare(&cap.mesh, &cap.train);
+    let train = views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE);
     let mut cfg = tiny_cfg(12);
     cfg.crop = 10;
     let mut straight = Trainer::new(cfg.clone(), &train).unwrap();

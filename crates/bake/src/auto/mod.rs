@@ -153,7 +153,8 @@ pub fn touched_texels(pyr: &Pyramid, views: &[View]) -> Vec<Vec<bool>> {
         .map(|l| {
             let mut t = vec![false; l.width * l.height];
             for v in views {
-                for (uv, &c) in v.gbuf.uv.iter().zip(&v.gbuf.coverage) {
+                let g = v.feature_gbuf();
+                for (uv, &c) in g.uv.iter().zip(&g.coverage) {
                     if c == 0.0 {
                         continue;
                     }
@@ -196,6 +197,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let fp = footprint::measure(loaded.fit());
     let cfg = TrainConfig {
         time_budget: budget,
+        supersample: loaded.supersample,
         ..cfg.clone()
     };
     let sized = decide_size(
@@ -325,6 +327,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         net: &net,
         out_ch,
         fallback_halvings: 0,
+        supersample: tr.cfg.supersample,
     };
     let (pruned_bytes, pruned_ms) =
         pipeline::measure_asset(&loaded, &parts, opts, None, loaded.val_frame())?;

@@ -66,6 +66,7 @@ pub fn synthetic_view(size: usize, seed: u64) -> View {
         alpha,
         has_alpha: true,
         valid: None,
+        fine: None,
     }
 }
 

@@ -181,6 +181,33 @@ pub struct Loaded {
     pub test: Vec<View>,
     /// What loading found and did.
     pub load: crate::capture::LoadReport,
+    /// Subsamples per pixel side the views were prepared with: the configuration's, or 1
+    /// when their G-buffers would pass [`SUBSAMPLE_MEMORY_LIMIT`].
+    pub supersample: u32,
+}
+
+/// Most bytes the subsample G-buffers of all views may take (36 bytes a subsample); a
+/// capture beyond it trains at one sample per pixel, with a warning.
+pub const SUBSAMPLE_MEMORY_LIMIT: u64 = 6 << 30;
+
+/// The supersample factor `wanted` if the subsample G-buffers of `pixels` pixels fit
+/// [`SUBSAMPLE_MEMORY_LIMIT`], else 1 with the warning to print.
+pub fn affordable_supersample(wanted: u32, pixels: u64) -> (u32, Option<String>) {
+    let bytes = pixels
+        .saturating_mul(u64::from(wanted) * u64::from(wanted))
+        .saturating_mul(std::mem::size_of::<[f32; 9]>() as u64);
+    if wanted <= 1 || bytes <= SUBSAMPLE_MEMORY_LIMIT {
+        return (wanted.max(1), None);
+    }
+    (
+        1,
+        Some(format!(
+            "--supersample {wanted} would need {:.1} GiB of subsample G-buffers for {pixels} \
+             pixels (at most {} GiB); training at one sample per pixel",
+            bytes as f64 / (1u64 << 30) as f64,
+            SUBSAMPLE_MEMORY_LIMIT >> 30
+        )),
+    )
 }
 
 impl Loaded {
@@ -247,8 +274,18 @@ pub fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, BakeError> 
             serde_json::to_string(&load.timings).unwrap_or_default()
         );
     }
-    let all = views::prepare(&capture.mesh, &capture.train);
-    let test = views::prepare(&capture.mesh, &capture.test);
+    let pixels: u64 = capture
+        .train
+        .iter()
+        .chain(&capture.test)
+        .map(|f| u64::from(f.camera.width) * u64::from(f.camera.height))
+        .sum();
+    let (supersample, warning) = affordable_supersample(cfg.supersample, pixels);
+    if let Some(w) = warning {
+        eprintln!("dnr-bake: warning: {w}");
+    }
+    let all = views::prepare(&capture.mesh, &capture.train, supersample);
+    let test = views::prepare(&capture.mesh, &capture.test, supersample);
     let val_idx = validation_indices(all.len());
     let (mut fit, mut val) = (Vec::new(), Vec::new());
     for (i, v) in all.into_iter().enumerate() {
@@ -267,6 +304,7 @@ pub fn load(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Loaded, BakeError> 
         val_idx,
         test,
         load,
+        supersample,
     })
 }
 
@@ -282,6 +320,8 @@ pub struct ExportParts<'a> {
     pub out_ch: usize,
     /// Halvings of the fallback PNG from the finest level's size (see [`crate::fallback`]).
     pub fallback_halvings: u32,
+    /// The renderer's `supersample` (subsamples per pixel side the network was trained on).
+    pub supersample: u32,
 }
 
 impl<'a> ExportParts<'a> {
@@ -293,6 +333,7 @@ impl<'a> ExportParts<'a> {
             net,
             out_ch: trainer.out_ch,
             fallback_halvings: 0,
+            supersample: trainer.cfg.supersample,
         }
     }
 }
@@ -309,6 +350,7 @@ pub fn build_asset(
         parts.sh,
         parts.net,
         parts.out_ch,
+        parts.supersample,
         storage,
     )?;
     builder.set_fallback_halvings(0, parts.fallback_halvings);
@@ -551,4 +593,20 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     std::fs::rename(&tmp, path).inspect_err(|_| {
         let _ = std::fs::remove_file(&tmp);
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn supersampling_falls_back_to_one_sample_beyond_the_memory_limit() {
+        // 200 views of 256^2 at s = 2: about 1.8 GiB, kept.
+        assert_eq!(affordable_supersample(2, 200 * 256 * 256), (2, None));
+        // 1000 views of 1024^2 at s = 2: about 141 GiB, refused with a warning.
+        let (s, w) = affordable_supersample(2, 1000 * 1024 * 1024);
+        assert_eq!(s, 1);
+        assert!(w.unwrap().contains("GiB"));
+        assert_eq!(affordable_supersample(1, u64::MAX), (1, None));
+    }
 }

@@ -16,10 +16,12 @@ use std::borrow::Cow;
 use std::path::Path;
 use std::time::Instant;
 
+use dnr_runtime::gbuffer::GBuffer;
 use dnr_runtime::network::mlp::{Mlp, MlpParams};
 use dnr_runtime::network::unet::{Decoder, Norm, UNet, UNetParams};
 use dnr_runtime::nn::awake::with_workers_awake;
 use dnr_runtime::nn::Tensor;
+use dnr_runtime::supersample::{box_mean, box_mean_adjoint};
 use dnr_runtime::texture::{sample_into, Pyramid, Wrap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -269,6 +271,17 @@ impl Trainer {
         if !train.iter().any(|v| v.gbuf.covered_count() > 0) {
             return Err(TrainError::NothingVisible);
         }
+        if let Some(v) = train
+            .iter()
+            .find(|v| v.supersample() != cfg.supersample as usize)
+        {
+            return Err(TrainError::Config(format!(
+                "view {} has {} subsamples per pixel side, the configuration {}",
+                v.name,
+                v.supersample(),
+                cfg.supersample
+            )));
+        }
         let has_alpha = train.iter().any(|v| v.has_alpha);
         let out_ch = if cfg.alpha && has_alpha && cfg.arch != Arch::None {
             4
@@ -493,26 +506,38 @@ impl Trainer {
     /// The feature image of a view from `pyr` (the trainer's, or its rounding during
     /// fine-tuning): the sampled pyramid (C x H x W) after SH. SH never touches channels 0..2
     /// (`SH_FIRST >= 3`), so those are still the raw features the mean-colour loss supervises.
+    ///
+    /// A supersampled view's features are sampled and modulated at its subsamples, then
+    /// box-averaged to pixels by the runtime's [`box_mean`].
     fn features_of(&self, pyr: &Pyramid, v: &View) -> Result<Tensor, TrainError> {
+        let g = v.feature_gbuf();
         // sample_into writes every value.
-        let mut x = Tensor::scratch(pyr.channels, v.height(), v.width());
-        sample_into(pyr, &v.gbuf, &mut x.data).map_err(|e| TrainError::Kernel(e.to_string()))?;
-        self.sh_modulate(v, &mut x.data)?;
-        Ok(x)
+        let mut x = Tensor::scratch(pyr.channels, g.height, g.width);
+        sample_into(pyr, g, &mut x.data).map_err(|e| TrainError::Kernel(e.to_string()))?;
+        self.sh_modulate(g, &mut x.data)?;
+        self.to_pixels(v, x)
     }
 
-    /// Multiplies the SH channels of a `C x H x W` image by the basis of the view's directions
-    /// (the SH layer's forward, and, being linear and diagonal, its backward).
-    fn sh_modulate(&self, v: &View, data: &mut [f32]) -> Result<(), TrainError> {
-        if let Some((deg, first)) = self.sh() {
-            dnr_runtime::sh::modulate(
-                data,
-                &v.gbuf.view_dir,
-                &v.gbuf.coverage,
-                first as usize,
-                deg,
-            )
+    /// The pixel feature image of a view from its feature G-buffer's image: the box mean of
+    /// the subsamples, or `x` itself at one sample per pixel.
+    fn to_pixels(&self, v: &View, x: Tensor) -> Result<Tensor, TrainError> {
+        let s = v.supersample();
+        if s == 1 {
+            return Ok(x);
+        }
+        let mut y = Tensor::scratch(x.c, v.height(), v.width());
+        box_mean(&x.data, x.c, v.width(), v.height(), s, &mut y.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
+        x.recycle();
+        Ok(y)
+    }
+
+    /// Multiplies the SH channels of a `C x H x W` image by the basis of a G-buffer's
+    /// directions (the SH layer's forward, and, being linear and diagonal, its backward).
+    fn sh_modulate(&self, g: &GBuffer, data: &mut [f32]) -> Result<(), TrainError> {
+        if let Some((deg, first)) = self.sh() {
+            dnr_runtime::sh::modulate(data, &g.view_dir, &g.coverage, first as usize, deg)
+                .map_err(|e| TrainError::Kernel(e.to_string()))?;
         }
         Ok(())
     }
@@ -543,12 +568,14 @@ impl Trainer {
             SH_FIRST >= 3,
             "the colour loss reads channels 0..2 after SH"
         );
-        let mut x = Tensor::scratch(self.pyr.channels, h, w);
+        let fg = v.feature_gbuf();
+        let mut xf = Tensor::scratch(self.pyr.channels, fg.height, fg.width);
         // During fine-tuning the taps read the rounded texture; their positions and weights,
         // all the backward uses, are those of the full-precision one (straight-through).
-        let taps = sample_forward_taps(&self.step_pyramid(), &v.gbuf, &mut x.data)
+        let taps = sample_forward_taps(&self.step_pyramid(), fg, &mut xf.data)
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
-        self.sh_modulate(v, &mut x.data)?;
+        self.sh_modulate(fg, &mut xf.data)?;
+        let x = self.to_pixels(v, xf)?;
         lap(&mut t, &mut ph.features);
 
         // Forward to straight colour and alpha, composite on white as the target is, L1, and
@@ -634,9 +661,8 @@ impl Trainer {
             }
         };
         lap(&mut t, &mut ph.backward);
-        // SH modulation is linear and diagonal: its backward is itself.
-        self.sh_modulate(v, &mut dx.data)?;
-        // Mean-colour supervision of channels 0..2 over covered object pixels.
+        // Mean-colour supervision of channels 0..2 over covered object pixels (SH leaves
+        // them alone, so this commutes with its backward).
         if self.cfg.mean_colour_weight > 0.0 && self.cfg.arch != Arch::None {
             colour_l1_loss_where(
                 &x,
@@ -647,6 +673,17 @@ impl Trainer {
             );
         }
         x.recycle();
+        // Back to the subsamples: the box mean's adjoint.
+        let s = v.supersample();
+        if s > 1 {
+            let mut dxf = Tensor::scratch(dx.c, fg.height, fg.width);
+            box_mean_adjoint(&dx.data, dx.c, w, h, s, &mut dxf.data)
+                .map_err(|e| TrainError::Kernel(e.to_string()))?;
+            dx.recycle();
+            dx = dxf;
+        }
+        // SH modulation is linear and diagonal: its backward is itself.
+        self.sh_modulate(fg, &mut dx.data)?;
         lap(&mut t, &mut ph.feature_grads);
 
         // Texture: scatter into the levels fused with lazy Adam on the touched texels only.

@@ -4,6 +4,7 @@
 use dnr_runtime::gbuffer::GBuffer;
 use dnr_runtime::raster::rasterize;
 use dnr_runtime::scene::Scene;
+use dnr_runtime::supersample::subsample_camera;
 use rayon::prelude::*;
 
 use crate::capture::Frame;
@@ -25,6 +26,9 @@ pub struct View {
     /// H x W: false where a pixel gives no loss and does not count in evaluation (masked
     /// out, or outside the undistorted photograph); None when all are valid.
     pub valid: Option<Vec<bool>>,
+    /// The G-buffer of the subsamples (`s` times the width and height) when the renderer
+    /// is supersampled (spec "Supersampled Features"); None at one sample per pixel.
+    pub fine: Option<GBuffer>,
 }
 
 impl View {
@@ -42,9 +46,23 @@ impl View {
         self.valid.as_ref().is_none_or(|v| v[i])
     }
 
-    /// Rasterises `scene` for `frame` and converts its image to planar targets.
-    pub fn new(scene: &Scene, frame: &Frame) -> View {
+    /// Subsamples per pixel side of the features (1 without a subsample G-buffer).
+    pub fn supersample(&self) -> usize {
+        self.fine
+            .as_ref()
+            .map_or(1, |f| f.width / self.gbuf.width.max(1))
+    }
+
+    /// The G-buffer the features are sampled at: the subsamples', or the pixels'.
+    pub fn feature_gbuf(&self) -> &GBuffer {
+        self.fine.as_ref().unwrap_or(&self.gbuf)
+    }
+
+    /// Rasterises `scene` for `frame` (and, with `s > 1`, for its `s x s` subsamples) and
+    /// converts its image to planar targets.
+    pub fn new(scene: &Scene, frame: &Frame, s: u32) -> View {
         let gbuf = rasterize(scene, &frame.camera);
+        let fine = (s > 1).then(|| rasterize(scene, &subsample_camera(&frame.camera, s)));
         let n = gbuf.width * gbuf.height;
         let mut target = vec![0.0f32; 3 * n];
         for i in 0..n {
@@ -60,6 +78,7 @@ impl View {
             alpha: frame.alpha.clone(),
             has_alpha: frame.has_alpha,
             valid: frame.valid.clone(),
+            fine,
         }
     }
 
@@ -67,7 +86,12 @@ impl View {
     pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> View {
         let src_w = self.width();
         let n_src = src_w * self.height();
-        let mut g = GBuffer::new(w, h);
+        let g = crop_gbuffer(&self.gbuf, x0, y0, w, h);
+        let ss = self.supersample();
+        let fine = self
+            .fine
+            .as_ref()
+            .map(|f| crop_gbuffer(f, ss * x0, ss * y0, ss * w, ss * h));
         let mut target = vec![0.0f32; 3 * w * h];
         let mut alpha = vec![0.0f32; w * h];
         let mut valid = self.valid.as_ref().map(|_| vec![false; w * h]);
@@ -75,12 +99,6 @@ impl View {
             for x in 0..w {
                 let s = (y0 + y) * src_w + x0 + x;
                 let d = y * w + x;
-                g.uv[d] = self.gbuf.uv[s];
-                g.coverage[d] = self.gbuf.coverage[s];
-                g.prim[d] = self.gbuf.prim[s];
-                g.tri[d] = self.gbuf.tri[s];
-                g.depth[d] = self.gbuf.depth[s];
-                g.view_dir[d] = self.gbuf.view_dir[s];
                 for c in 0..3 {
                     target[c * w * h + d] = self.target[c * n_src + s];
                 }
@@ -97,6 +115,7 @@ impl View {
             alpha,
             has_alpha: self.has_alpha,
             valid,
+            fine,
         }
     }
 
@@ -113,7 +132,23 @@ impl View {
     }
 }
 
-/// Prepares all frames in parallel.
-pub fn prepare(scene: &Scene, frames: &[Frame]) -> Vec<View> {
-    frames.par_iter().map(|f| View::new(scene, f)).collect()
+/// The window `[x0, x0+w) x [y0, y0+h)` of a G-buffer (values cut, never resampled).
+fn crop_gbuffer(src: &GBuffer, x0: usize, y0: usize, w: usize, h: usize) -> GBuffer {
+    let mut g = GBuffer::new(w, h);
+    for y in 0..h {
+        let s = (y0 + y) * src.width + x0;
+        let d = y * w;
+        g.uv[d..d + w].copy_from_slice(&src.uv[s..s + w]);
+        g.coverage[d..d + w].copy_from_slice(&src.coverage[s..s + w]);
+        g.prim[d..d + w].copy_from_slice(&src.prim[s..s + w]);
+        g.tri[d..d + w].copy_from_slice(&src.tri[s..s + w]);
+        g.depth[d..d + w].copy_from_slice(&src.depth[s..s + w]);
+        g.view_dir[d..d + w].copy_from_slice(&src.view_dir[s..s + w]);
+    }
+    g
+}
+
+/// Prepares all frames in parallel, with `s x s` subsamples per pixel when `s > 1`.
+pub fn prepare(scene: &Scene, frames: &[Frame], s: u32) -> Vec<View> {
+    frames.par_iter().map(|f| View::new(scene, f, s)).collect()
 }
