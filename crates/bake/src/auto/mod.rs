@@ -188,7 +188,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         AUTO_DEFAULT_BUDGET
     };
     // 1. Validation views (held out by the pipeline).
-    let loaded = pipeline::load(cfg, opts)?;
+    let mut loaded = pipeline::load(cfg, opts)?;
     let t_analysis = Instant::now();
     let mut decisions = Vec::new();
 
@@ -210,6 +210,10 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     )?;
     let mut tr = sized.trainer;
     let mut classical_pyr = sized.classical;
+    if tr.cfg.supersample != loaded.supersample {
+        // The budget does not afford subsamples: free them (and skip cutting them in crops).
+        loaded.drop_subsamples();
+    }
     let untouched = decide_untouched(&mut tr, loaded.fit(), &mut decisions);
     let classical_psnr = {
         // The classical texture's colour channels alone, with the same texels zeroed.
@@ -417,8 +421,8 @@ pub fn decide_size(
     let chosen = rungs.iter().find(|r| r.chosen).or(rungs.last());
     let summary = chosen.map_or(String::new(), |r| {
         format!(
-            "rung {} ({:.0} ms/step), texture {}x{} in {} levels",
-            r.name, r.step_ms, r.resolution, r.resolution, r.levels
+            "rung {} ({:.0} ms/step), texture {}x{} in {} levels, {}x{} subsamples",
+            r.name, r.step_ms, r.resolution, r.resolution, r.levels, r.supersample, r.supersample
         )
     });
     decisions.push(Decision::plain(
@@ -426,8 +430,9 @@ pub fn decide_size(
         chosen
             .map(|r| {
                 format!(
-                    "{} ({}x{}, {} levels, U-Net {:?})",
-                    r.name, r.resolution, r.resolution, r.levels, r.widths
+                    "{} ({}x{}, {} levels, U-Net {:?}), {}x{} subsamples per pixel",
+                    r.name, r.resolution, r.resolution, r.levels, r.widths, r.supersample,
+                    r.supersample
                 )
             })
             .unwrap_or_default(),
@@ -435,8 +440,8 @@ pub fn decide_size(
             .iter()
             .map(|r| {
                 format!(
-                    "{}: {:.1} ms/step, {:.0} steps in the budget",
-                    r.name, r.step_ms, r.steps_in_budget
+                    "{} at {}x{} subsamples: {:.1} ms/step, {:.0} steps in the budget",
+                    r.name, r.supersample, r.supersample, r.step_ms, r.steps_in_budget
                 )
             })
             .collect::<Vec<_>>()

@@ -59,6 +59,8 @@ pub struct RungTrial {
     pub levels: u32,
     /// U-Net widths.
     pub widths: Vec<u32>,
+    /// Subsamples per pixel side of the features.
+    pub supersample: u32,
     /// Measured training step (ms, mean of 5 after 2 warm-up steps).
     pub step_ms: f64,
     /// Steps that fit in what is left of the budget at that rate.
@@ -67,10 +69,14 @@ pub struct RungTrial {
     pub chosen: bool,
 }
 
-/// Times the rungs largest first and returns the trainer of the first that affords
-/// [`MIN_STEPS`] (or of the last), its texture before the timed steps (the classical
-/// texture), and every trial. `cfg.time_budget` is the whole budget;
-/// the time since `t_analysis` counts against it.
+/// Times the rungs largest first, each with `cfg.supersample` subsamples per pixel side and
+/// then (when that is above 1) with one sample, and returns the trainer of the first that
+/// affords [`MIN_STEPS`] (or of the last), its texture before the timed steps (the classical
+/// texture), and every trial. `cfg.time_budget` is the whole budget; the time since
+/// `t_analysis` counts against it.
+///
+/// Supersampling costs about twice the step; it is kept only where the rung still takes
+/// [`MIN_STEPS`] with it, so a short budget trains as many steps as it did without it.
 pub fn choose(
     cfg: &TrainConfig,
     fit: &[View],
@@ -79,13 +85,23 @@ pub fn choose(
     t_analysis: Instant,
 ) -> Result<(Trainer, dnr_runtime::texture::Pyramid, Vec<RungTrial>), TrainError> {
     let mut trials = Vec::new();
-    for (i, r) in RUNGS.iter().enumerate() {
+    let factors: &[u32] = if cfg.supersample > 1 {
+        &[cfg.supersample, 1]
+    } else {
+        &[1]
+    };
+    let ladder = RUNGS
+        .iter()
+        .flat_map(|r| factors.iter().map(move |&s| (r, s)));
+    let last = RUNGS.len() * factors.len() - 1;
+    for (i, (r, s)) in ladder.enumerate() {
         let c = TrainConfig {
             resolution: r.resolution,
             levels: r.levels,
             widths: r.widths.to_vec(),
             arch: Arch::Unet,
             sh,
+            supersample: s,
             ..cfg.clone()
         };
         let mut tr = Trainer::new(c, fit)?;
@@ -103,12 +119,13 @@ pub fn choose(
         let step_s = ts.elapsed().as_secs_f64() / TIMED_STEPS as f64;
         let left = cfg.time_budget - t_analysis.elapsed().as_secs_f64();
         let steps = left.max(0.0) / step_s;
-        let ok = steps >= MIN_STEPS || i + 1 == RUNGS.len();
+        let ok = steps >= MIN_STEPS || i == last;
         trials.push(RungTrial {
             name: r.name.into(),
             resolution: r.resolution,
             levels: r.levels,
             widths: r.widths.to_vec(),
+            supersample: s,
             step_ms: 1e3 * step_s,
             steps_in_budget: steps,
             chosen: ok,

@@ -211,6 +211,15 @@ pub fn affordable_supersample(wanted: u32, pixels: u64) -> (u32, Option<String>)
 }
 
 impl Loaded {
+    /// Forgets the views' subsample G-buffers: training and evaluation at one sample per
+    /// pixel.
+    pub fn drop_subsamples(&mut self) {
+        for v in self.train.iter_mut().chain(self.test.iter_mut()) {
+            v.fine = None;
+        }
+        self.supersample = 1;
+    }
+
     /// The views training fits.
     pub fn fit(&self) -> &[View] {
         &self.train[..self.n_fit]

@@ -271,9 +271,11 @@ impl Trainer {
         if !train.iter().any(|v| v.gbuf.covered_count() > 0) {
             return Err(TrainError::NothingVisible);
         }
+        // Views prepared with subsamples also train at one sample per pixel (auto times
+        // both); the other way round they cannot.
         if let Some(v) = train
             .iter()
-            .find(|v| v.supersample() != cfg.supersample as usize)
+            .find(|v| cfg.supersample > 1 && v.supersample() != cfg.supersample as usize)
         {
             return Err(TrainError::Config(format!(
                 "view {} has {} subsamples per pixel side, the configuration {}",
@@ -490,7 +492,7 @@ impl Trainer {
             let (cw, ch) = (cs.min(w), cs.min(h));
             let x0 = self.rng.random_range(0..=w - cw);
             let y0 = self.rng.random_range(0..=h - ch);
-            let c = v.crop(x0, y0, cw, ch);
+            let c = v.crop(x0, y0, cw, ch, self.cfg.supersample > 1);
             if c.gbuf.covered_count() > 0 {
                 return Cow::Owned(c);
             }
@@ -510,7 +512,7 @@ impl Trainer {
     /// A supersampled view's features are sampled and modulated at its subsamples, then
     /// box-averaged to pixels by the runtime's [`box_mean`].
     fn features_of(&self, pyr: &Pyramid, v: &View) -> Result<Tensor, TrainError> {
-        let g = v.feature_gbuf();
+        let (g, _) = self.feature_gbuf(v);
         // sample_into writes every value.
         let mut x = Tensor::scratch(pyr.channels, g.height, g.width);
         sample_into(pyr, g, &mut x.data).map_err(|e| TrainError::Kernel(e.to_string()))?;
@@ -521,7 +523,7 @@ impl Trainer {
     /// The pixel feature image of a view from its feature G-buffer's image: the box mean of
     /// the subsamples, or `x` itself at one sample per pixel.
     fn to_pixels(&self, v: &View, x: Tensor) -> Result<Tensor, TrainError> {
-        let s = v.supersample();
+        let (_, s) = self.feature_gbuf(v);
         if s == 1 {
             return Ok(x);
         }
@@ -530,6 +532,15 @@ impl Trainer {
             .map_err(|e| TrainError::Kernel(e.to_string()))?;
         x.recycle();
         Ok(y)
+    }
+
+    /// The G-buffer a view's features are sampled at and its subsamples per pixel side: the
+    /// subsamples' when this trainer supersamples, else the pixels'.
+    fn feature_gbuf<'v>(&self, v: &'v View) -> (&'v GBuffer, usize) {
+        match &v.fine {
+            Some(f) if self.cfg.supersample > 1 => (f, v.supersample()),
+            _ => (&v.gbuf, 1),
+        }
     }
 
     /// Multiplies the SH channels of a `C x H x W` image by the basis of a G-buffer's
@@ -568,7 +579,7 @@ impl Trainer {
             SH_FIRST >= 3,
             "the colour loss reads channels 0..2 after SH"
         );
-        let fg = v.feature_gbuf();
+        let (fg, s) = self.feature_gbuf(v);
         let mut xf = Tensor::scratch(self.pyr.channels, fg.height, fg.width);
         // During fine-tuning the taps read the rounded texture; their positions and weights,
         // all the backward uses, are those of the full-precision one (straight-through).
@@ -674,7 +685,6 @@ impl Trainer {
         }
         x.recycle();
         // Back to the subsamples: the box mean's adjoint.
-        let s = v.supersample();
         if s > 1 {
             let mut dxf = Tensor::scratch(dx.c, fg.height, fg.width);
             box_mean_adjoint(&dx.data, dx.c, w, h, s, &mut dxf.data)

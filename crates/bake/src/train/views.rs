@@ -83,7 +83,8 @@ impl View {
     }
 
     /// A crop `[x0, x0+w) x [y0, y0+h)` of this view (uv maps are cut, never resampled).
-    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> View {
+    /// The subsamples are cut too when `with_subsamples` (dropped otherwise).
+    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize, with_subsamples: bool) -> View {
         let src_w = self.width();
         let n_src = src_w * self.height();
         let g = crop_gbuffer(&self.gbuf, x0, y0, w, h);
@@ -91,6 +92,7 @@ impl View {
         let fine = self
             .fine
             .as_ref()
+            .filter(|_| with_subsamples)
             .map(|f| crop_gbuffer(f, ss * x0, ss * y0, ss * w, ss * h));
         let mut target = vec![0.0f32; 3 * w * h];
         let mut alpha = vec![0.0f32; w * h];

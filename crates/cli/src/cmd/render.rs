@@ -14,6 +14,7 @@ use dnr_bake::eval::{frame_file_stem, save_png_rgba};
 use dnr_runtime::camera::Camera;
 use dnr_runtime::raster::rasterize;
 use dnr_runtime::renderer::Renderer;
+use dnr_runtime::supersample::subsample_camera;
 use serde::Serialize;
 
 /// Which frames of a capture to use.
@@ -125,10 +126,28 @@ pub fn run(args: &Args) -> anyhow::Result<ExitCode> {
     for (name, cam, path) in jobs {
         let t0 = Instant::now();
         let g = rasterize(renderer.scene(), &cam);
+        // Supersampled renderers (format revision 1.3) also need their subsamples' view.
+        let factors = renderer.supersample_factors();
+        if let Some(s) = factors.last() {
+            let px = u64::from(cam.width) * u64::from(cam.height) * u64::from(s * s);
+            if px > dnr_runtime::renderer::MAX_PIXELS {
+                bail!(
+                    "cannot render `{name}`: {}x{} at the asset's {s}x{s} subsamples is {px} \
+                     samples, more than {}",
+                    cam.width,
+                    cam.height,
+                    dnr_runtime::renderer::MAX_PIXELS
+                );
+            }
+        }
+        let fine: Vec<_> = factors
+            .into_iter()
+            .map(|s| rasterize(renderer.scene(), &subsample_camera(&cam, s)))
+            .collect();
         let raster_ms = ms(t0);
         let t1 = Instant::now();
         let img = renderer
-            .shade(&g)
+            .shade_supersampled(&g, &fine)
             .with_context(|| format!("cannot render `{name}`"))?;
         let shade_ms = ms(t1);
         save_png_rgba(&path, &img)
