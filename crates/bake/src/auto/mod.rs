@@ -14,7 +14,9 @@
 //!    colour that follows the view direction ([`view_dependence`]).
 //! 3. [`decide_size`]: the largest rung of [`size::RUNGS`] whose step, timed here on this
 //!    capture, allows at least [`size::MIN_STEPS`] steps; its finest texture level no finer
-//!    than the training pixels resolve ([`footprint`]).
+//!    than the training pixels resolve ([`footprint`]). With 2x2 subsamples per pixel (the
+//!    default `--supersample 2`) where that rung still affords the steps with them
+//!    ([`size::choose`]).
 //! 4. [`decide_untouched`]: texels no training pixel touches are zero and never updated.
 //! 5. [`train_phase`] to `PRUNE_AT` of the budget, trying the finest level on the way
 //!    ([`resolution`]: removed as soon as it buys less than [`PRUNE_DB`]); then, when the network beats the classical
@@ -447,8 +449,9 @@ pub fn decide_size(
             .collect::<Vec<_>>()
             .join("; ")
             + &format!(
-                " (a rung needs {}); pixel footprint in uv {:.2e} / {:.2e} / {:.2e} at quantiles 0.1 / 0.5 / 0.9: {} texels of side resolve a pixel of the closer views",
+                " (a rung needs {}; it is timed with its subsamples where it affords {:.1}x that, and keeps them where it still affords it); pixel footprint in uv {:.2e} / {:.2e} / {:.2e} at quantiles 0.1 / 0.5 / 0.9: {} texels of side resolve a pixel of the closer views",
                 size::MIN_STEPS,
+                size::SUPERSAMPLE_HEADROOM,
                 fp.quantiles[0],
                 fp.quantiles[2],
                 fp.quantiles[4],

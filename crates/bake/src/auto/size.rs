@@ -69,14 +69,15 @@ pub struct RungTrial {
     pub chosen: bool,
 }
 
-/// Times the rungs largest first, each with `cfg.supersample` subsamples per pixel side and
-/// then (when that is above 1) with one sample, and returns the trainer of the first that
-/// affords [`MIN_STEPS`] (or of the last), its texture before the timed steps (the classical
-/// texture), and every trial. `cfg.time_budget` is the whole budget; the time since
+/// Times the rungs largest first at one sample per pixel, and returns the trainer of the
+/// first that affords [`MIN_STEPS`] (or of the last), its texture before the timed steps (the
+/// classical texture), and every trial. `cfg.time_budget` is the whole budget; the time since
 /// `t_analysis` counts against it.
 ///
-/// Supersampling costs about twice the step; it is kept only where the rung still takes
-/// [`MIN_STEPS`] with it, so a short budget trains as many steps as it did without it.
+/// With `cfg.supersample` above 1, the chosen rung is timed again with its subsamples when
+/// it affords [`SUPERSAMPLE_HEADROOM`] times [`MIN_STEPS`] without them, and trains with them
+/// if it still affords [`MIN_STEPS`]. Supersampling costs about twice the step, so a short
+/// budget keeps the rung and the step count it had without it.
 pub fn choose(
     cfg: &TrainConfig,
     fit: &[View],
@@ -85,54 +86,81 @@ pub fn choose(
     t_analysis: Instant,
 ) -> Result<(Trainer, dnr_runtime::texture::Pyramid, Vec<RungTrial>), TrainError> {
     let mut trials = Vec::new();
-    let factors: &[u32] = if cfg.supersample > 1 {
-        &[cfg.supersample, 1]
-    } else {
-        &[1]
-    };
-    let ladder = RUNGS
-        .iter()
-        .flat_map(|r| factors.iter().map(move |&s| (r, s)));
-    let last = RUNGS.len() * factors.len() - 1;
-    for (i, (r, s)) in ladder.enumerate() {
-        let c = TrainConfig {
-            resolution: r.resolution,
-            levels: r.levels,
-            widths: r.widths.to_vec(),
-            arch: Arch::Unet,
-            sh,
-            supersample: s,
-            ..cfg.clone()
-        };
-        let mut tr = Trainer::new(c, fit)?;
-        let classical = tr.pyr.clone();
-        // The first steps fill the tensor pool and the caches; time the ones after. (They
-        // are taken at the warm-up's first factor, so they barely move the state.)
-        tr.set_lr_scale(cfg.schedule.factor(0.0) as f32);
-        for _ in 0..WARM_STEPS {
-            tr.step(fit)?;
+    for (i, r) in RUNGS.iter().enumerate() {
+        let (tr, classical, trial) = time_rung(cfg, fit, sh, r, 1, t_analysis)?;
+        let ok = trial.steps_in_budget >= MIN_STEPS || i + 1 == RUNGS.len();
+        let headroom = trial.steps_in_budget >= SUPERSAMPLE_HEADROOM * MIN_STEPS;
+        trials.push(trial);
+        if !ok {
+            continue;
         }
-        let ts = Instant::now();
-        for _ in 0..TIMED_STEPS {
-            tr.step(fit)?;
+        if cfg.supersample > 1 && headroom {
+            let (ts, cs, t2) = time_rung(cfg, fit, sh, r, cfg.supersample, t_analysis)?;
+            let affords = t2.steps_in_budget >= MIN_STEPS;
+            trials.push(t2);
+            if affords {
+                trials.last_mut().expect("pushed").chosen = true;
+                return Ok((ts, cs, trials));
+            }
         }
-        let step_s = ts.elapsed().as_secs_f64() / TIMED_STEPS as f64;
-        let left = cfg.time_budget - t_analysis.elapsed().as_secs_f64();
-        let steps = left.max(0.0) / step_s;
-        let ok = steps >= MIN_STEPS || i == last;
-        trials.push(RungTrial {
-            name: r.name.into(),
-            resolution: r.resolution,
-            levels: r.levels,
-            widths: r.widths.to_vec(),
-            supersample: s,
-            step_ms: 1e3 * step_s,
-            steps_in_budget: steps,
-            chosen: ok,
-        });
-        if ok {
-            return Ok((tr, classical, trials));
-        }
+        trials
+            .iter_mut()
+            .rev()
+            .find(|t| t.supersample == 1)
+            .expect("pushed")
+            .chosen = true;
+        return Ok((tr, classical, trials));
     }
     unreachable!("the last rung is always chosen")
+}
+
+/// Steps a rung must afford at one sample per pixel before it is timed with subsamples,
+/// in units of [`MIN_STEPS`] (the subsamples about halve the step rate).
+pub const SUPERSAMPLE_HEADROOM: f64 = 1.5;
+
+/// A trainer of rung `r` at `s x s` subsamples, its classical texture, and its timing (not
+/// yet chosen).
+fn time_rung(
+    cfg: &TrainConfig,
+    fit: &[View],
+    sh: bool,
+    r: &Rung,
+    s: u32,
+    t_analysis: Instant,
+) -> Result<(Trainer, dnr_runtime::texture::Pyramid, RungTrial), TrainError> {
+    let c = TrainConfig {
+        resolution: r.resolution,
+        levels: r.levels,
+        widths: r.widths.to_vec(),
+        arch: Arch::Unet,
+        sh,
+        supersample: s,
+        ..cfg.clone()
+    };
+    let mut tr = Trainer::new(c, fit)?;
+    let classical = tr.pyr.clone();
+    // The first steps fill the tensor pool and the caches; time the ones after. (They are
+    // taken at the warm-up's first factor, so they barely move the state.)
+    tr.set_lr_scale(cfg.schedule.factor(0.0) as f32);
+    for _ in 0..WARM_STEPS {
+        tr.step(fit)?;
+    }
+    let ts = Instant::now();
+    for _ in 0..TIMED_STEPS {
+        tr.step(fit)?;
+    }
+    let step_s = ts.elapsed().as_secs_f64() / TIMED_STEPS as f64;
+    let left = cfg.time_budget - t_analysis.elapsed().as_secs_f64();
+    let steps = left.max(0.0) / step_s;
+    let trial = RungTrial {
+        name: r.name.into(),
+        resolution: r.resolution,
+        levels: r.levels,
+        widths: r.widths.to_vec(),
+        supersample: s,
+        step_ms: 1e3 * step_s,
+        steps_in_budget: steps,
+        chosen: false,
+    };
+    Ok((tr, classical, trial))
 }
