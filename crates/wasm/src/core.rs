@@ -260,6 +260,8 @@ impl Loaded {
     /// Shades a G-buffer a viewer rasterised (row 0 at the top): per pixel `coverage`
     /// (non-zero = covered), `prim` (index into `scenePrimitives`), `uv` (2 values) and
     /// `view_dir` (3 values, unit eye-to-surface direction in the primitive's local space).
+    /// Assets with supersampled renderers (format revision 1.3) need their subsamples' view
+    /// too and give an error here: draw them with [`Loaded::render`].
     pub fn shade(
         &self,
         width: usize,

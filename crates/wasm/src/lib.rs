@@ -131,7 +131,9 @@ impl DnrAsset {
 
     /// Shades a viewer's G-buffer (row 0 at the top): `coverage` (n), `prim` (n, indices of
     /// `scenePrimitives`), `uv` (2n), `viewDir` (3n, local-space unit eye-to-surface
-    /// directions). Returns `n * 4` values like [`DnrAsset::render`].
+    /// directions). Returns `n * 4` values like [`DnrAsset::render`]. Assets with supersampled
+    /// renderers (format revision 1.3) give an error here: draw them with
+    /// [`DnrAsset::render`].
     pub fn shade(
         &self,
         width: usize,
