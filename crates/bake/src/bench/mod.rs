@@ -122,7 +122,8 @@ pub(crate) fn random_tensor(r: &mut ChaCha8Rng, c: usize, h: usize, w: usize) ->
 pub struct BenchRow {
     /// "train" (U-Net forward, backward, Adam), "conv fwd+bwd" (its convolutions alone, see
     /// [`conv::bench_conv_layers`]), "step" (the baker's whole step, texture included),
-    /// "infer", or "encoder GEMMs" (see [`bench_encoder_gemm`]).
+    /// "step 2x2" (the same with 2x2 subsamples per pixel), "infer", or "encoder GEMMs" (see
+    /// [`bench_encoder_gemm`]).
     pub kind: &'static str,
     /// U-Net widths.
     pub widths: Vec<usize>,
@@ -292,16 +293,24 @@ pub fn run_standard(reps: usize) -> BenchReport {
             rows.push(conv::bench_conv_layers(widths, size, reps));
             // The baker's whole step: texture sampling, SH, U-Net, losses, texture update.
             let w32: Vec<u32> = widths.iter().map(|&w| w as u32).collect();
-            let (ms_min, ms_median, phases) = step::bench_trainer_step(&w32, size, reps);
-            rows.push(BenchRow {
-                kind: "step",
-                widths: widths.to_vec(),
-                size,
-                ms_min,
-                ms_median,
-                gflop: 3.0 * bench_params(widths).flops(size, size) as f64 * 1e-9,
-                phases: Some(phases),
-            });
+            // And with the default 2x2 subsamples, at the size the baker trains the CPU net.
+            let factors: &[u32] = if widths == &CPU_WIDTHS[..] && size == 256 {
+                &[1, 2]
+            } else {
+                &[1]
+            };
+            for &s in factors {
+                let (ms_min, ms_median, phases) = step::bench_trainer_step(&w32, size, s, reps);
+                rows.push(BenchRow {
+                    kind: if s == 1 { "step" } else { "step 2x2" },
+                    widths: widths.to_vec(),
+                    size,
+                    ms_min,
+                    ms_median,
+                    gflop: 3.0 * bench_params(widths).flops(size, size) as f64 * 1e-9,
+                    phases: Some(phases),
+                });
+            }
         }
         for size in [256, 512] {
             rows.push(bench_infer(widths, size, reps));

@@ -72,9 +72,23 @@ pub fn synthetic_view(size: usize, seed: u64) -> View {
 
 /// Milliseconds (min, median in the steady state, see [`time_steady`]) of one full training
 /// step at `size` x `size` with a 512x512x16, 4-level texture, SH, and a U-Net of `widths`
-/// (RGBA output), and the mean milliseconds per timed step of each phase.
-pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64, PhaseSeconds) {
-    let views: Vec<View> = (0..2).map(|s| synthetic_view(size, s)).collect();
+/// (RGBA output), with `supersample` x `supersample` subsamples per pixel, and the mean
+/// milliseconds per timed step of each phase.
+pub fn bench_trainer_step(
+    widths: &[u32],
+    size: usize,
+    supersample: u32,
+    reps: usize,
+) -> (f64, f64, PhaseSeconds) {
+    let views: Vec<View> = (0..2)
+        .map(|seed| {
+            let mut v = synthetic_view(size, seed);
+            // The same uv field sampled s times as densely: what the subsample pass gives.
+            v.fine =
+                (supersample > 1).then(|| synthetic_view(size * supersample as usize, seed).gbuf);
+            v
+        })
+        .collect();
     let cfg = TrainConfig {
         arch: Arch::Unet,
         widths: widths.to_vec(),
@@ -84,6 +98,7 @@ pub fn bench_trainer_step(widths: &[u32], size: usize, reps: usize) -> (f64, f64
         sh: true,
         crop: 0,
         steps: u64::MAX,
+        supersample,
         ..TrainConfig::preset(Preset::Balanced)
     };
     let mut t = Trainer::new(cfg, &views).expect("synthetic views train");

@@ -173,7 +173,8 @@ fn paired(peer: Peer<'_>, reps: usize, threads: usize, pairs: usize) -> Result<s
     let mut ratios: Vec<(usize, f64, f64)> = Vec::new();
     for p in 0..pairs {
         for size in [128usize, 256] {
-            let (d_min, d_med, _) = dnr_bake::bench::step::bench_trainer_step(&widths, size, reps);
+            let (d_min, d_med, _) =
+                dnr_bake::bench::step::bench_trainer_step(&widths, size, 1, reps);
             let s = size.to_string();
             // The peer always times an inference row too: 64 keeps it short (16 fails there: the
             // CPU-sized U-Net's bottom level would be 1x1, which instance norm rejects).
