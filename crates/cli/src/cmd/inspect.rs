@@ -226,6 +226,9 @@ fn summarize(c: &Container, path: &std::path::Path) -> anyhow::Result<Summary> {
             if let Some(n) = &r.normalization {
                 params.insert("normalization".into(), serde_json::json!(n.as_str()));
             }
+            if let Some(s) = r.supersample {
+                params.insert("supersample".into(), serde_json::json!(s));
+            }
             let parameter_count = r.weights.iter().filter_map(|w| w.element_count()).sum();
             let weight_bytes: u64 = r.weights.iter().filter_map(|w| w.byte_length()).sum();
             for w in &r.weights {
