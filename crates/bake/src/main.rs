@@ -132,7 +132,7 @@ struct Args {
     #[arg(long)]
     reg: Option<f32>,
     /// Subsamples per pixel side of the feature image, 1 to 4 (default 2; 1 with --preset
-    /// paper): the network sees the mean of S x S subsample features per pixel, so it learns
+    /// fast or paper): the network sees the mean of S x S subsample features per pixel, so it learns
     /// anti-aliased silhouettes and detail below a pixel. The asset records it (format
     /// revision 1.3); viewers then draw S x S subsamples per pixel. 1 trains faster and
     /// writes an asset every revision 1.0 reader draws exactly.

@@ -16,7 +16,7 @@ mod capture_common;
 use dnr_bake::capture::{Capture, LoadOptions};
 use dnr_bake::kernels::mlp::MlpTrain;
 use dnr_bake::kernels::sample::{sample_backward, sample_forward};
-use dnr_bake::train::config::{Arch, Preset, TrainConfig, DEFAULT_SUPERSAMPLE};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig};
 use dnr_bake::train::quantise::{quantised_pyramid, quantised_weights, QatTarget};
 use dnr_bake::train::views;
 use dnr_bake::train::Trainer;
@@ -218,7 +218,7 @@ fn straight_through_gradient_is_the_derivative_at_the_stored_weights(target: &Qa
 fn fine_tuning_runs_on_the_rounding_and_updates_full_precision_values() {
     let dir = capture_common::sample_capture();
     let cap = Capture::load(&dir, &LoadOptions::default()).unwrap();
-    let all = views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE);
+    let all = views::prepare(&cap.mesh, &cap.train, 1);
     let cfg = TrainConfig {
         resolution: 32,
         levels: 2,

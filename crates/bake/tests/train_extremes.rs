@@ -5,7 +5,7 @@
 mod capture_common;
 
 use dnr_bake::capture::{Capture, LoadOptions};
-use dnr_bake::train::config::{Arch, Preset, TrainConfig, DEFAULT_SUPERSAMPLE};
+use dnr_bake::train::config::{Arch, Preset, TrainConfig};
 use dnr_bake::train::views::{self, View};
 use dnr_bake::train::{run, RunState, TrainError, Trainer, MAX_RECOVERIES};
 
@@ -34,8 +34,8 @@ fn capture(n: usize, size: u32, f: impl Fn(u32, u32) -> [u8; 4] + Copy) -> (Vec<
     }
     let cap = Capture::load(dir.path(), &LoadOptions::default()).unwrap();
     (
-        views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE),
-        views::prepare(&cap.mesh, &cap.test, DEFAULT_SUPERSAMPLE),
+        views::prepare(&cap.mesh, &cap.train, 1),
+        views::prepare(&cap.mesh, &cap.test, 1),
     )
 }
 
@@ -155,7 +155,7 @@ fn almost_no_object_pixels_and_background_crops() {
         v["camera_angle_x"] = serde_json::json!(2.6);
     });
     let cap = Capture::load(dir.path(), &LoadOptions::default()).unwrap();
-    let train = views::prepare(&cap.mesh, &cap.train, DEFAULT_SUPERSAMPLE);
+    let train = views::prepare(&cap.mesh, &cap.train, 1);
     let covered: f32 = train.iter().flat_map(|v| v.gbuf.coverage.iter()).sum();
     let total: usize = train.iter().map(|v| v.gbuf.coverage.len()).sum();
     assert!(

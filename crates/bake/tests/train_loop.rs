@@ -38,6 +38,7 @@ fn cfg(lr: f32, steps: u64) -> TrainConfig {
         eval_every: 0.0,
         threads: 1,
         seed: 5,
+        supersample: DEFAULT_SUPERSAMPLE,
         ..TrainConfig::preset(Preset::Fast)
     }
 }

@@ -350,6 +350,8 @@ fn tiny_cfg(steps: u64) -> TrainConfig {
         lr_tex: 1e-2,
         eval_every: 0.0,
         seed: 5,
+        // Trained and drawn with subsamples: the runtime must reproduce the trainer's mean.
+        supersample: DEFAULT_SUPERSAMPLE,
         ..TrainConfig::preset(Preset::Fast)
     }
 }
