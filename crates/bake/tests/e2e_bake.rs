@@ -304,6 +304,32 @@ fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
         has_sh, sh_kept,
         "report and asset disagree on the SH layer: {a}"
     );
+    // Subsamples: timed on the chosen rung only with headroom at one sample, kept only where
+    // they still afford the rung's steps, and what the asset's renderer records.
+    use dnr_bake::auto::size::{MIN_STEPS, SUPERSAMPLE_HEADROOM};
+    let rungs = a["rungs"].as_array().expect("rung trials");
+    let chosen: Vec<_> = rungs.iter().filter(|t| t["chosen"] == true).collect();
+    assert_eq!(chosen.len(), 1, "one chosen trial: {rungs:?}");
+    let name = &chosen[0]["name"];
+    let steps = |s: u64| {
+        rungs
+            .iter()
+            .find(|t| &t["name"] == name && t["supersample"] == s)
+            .map(|t| t["stepsInBudget"].as_f64().unwrap())
+    };
+    let one = steps(1).expect("the chosen rung timed at one sample");
+    assert_eq!(
+        steps(2).is_some(),
+        one >= SUPERSAMPLE_HEADROOM * MIN_STEPS,
+        "{rungs:?}"
+    );
+    let s = chosen[0]["supersample"].as_u64().unwrap();
+    assert_eq!(
+        s == 2,
+        steps(2).is_some_and(|t| t >= MIN_STEPS),
+        "{rungs:?}"
+    );
+    assert_eq!(u64::from(ext.renderers[0].supersample_factor()), s);
     r
 }
 
