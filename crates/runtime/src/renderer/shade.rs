@@ -55,24 +55,25 @@ pub(super) fn shade(
         // sampled at pixel centres where needed.
         let averaged = if slot.supersample > 1 {
             let s = slot.supersample;
-            if !fine_own.iter().any(|(fs, ..)| *fs == s) {
-                let fg = fine
-                    .iter()
-                    .find(|f| f.width == s * g.width && f.height == s * g.height)
-                    .ok_or_else(|| {
-                        RendererError::GBuffer(format!(
-                            "renderer {ri} has supersample {s}: a subsample G-buffer of {}x{} \
-                             ({s} times the frame) is needed",
-                            s * g.width,
-                            s * g.height
-                        ))
-                    })?;
-                fine_own.push((s, fg, ownership(r, fg)?));
-            }
-            let (_, fg, fo) = fine_own
-                .iter()
-                .find(|(fs, ..)| *fs == s)
-                .ok_or_else(|| RendererError::GBuffer("subsample ownership".into()))?;
+            let k = match fine_own.iter().position(|(fs, ..)| *fs == s) {
+                Some(k) => k,
+                None => {
+                    let fg = fine
+                        .iter()
+                        .find(|f| f.width == s * g.width && f.height == s * g.height)
+                        .ok_or_else(|| {
+                            RendererError::GBuffer(format!(
+                                "renderer {ri} has supersample {s}: a subsample G-buffer of \
+                                 {}x{} ({s} times the frame) is needed",
+                                s * g.width,
+                                s * g.height
+                            ))
+                        })?;
+                    fine_own.push((s, fg, ownership(r, fg)?));
+                    fine_own.len() - 1
+                }
+            };
+            let (_, fg, fo) = &fine_own[k];
             Some(supersampled_features(r, id, g, fg, fo, slot).map_err(run_err)?)
         } else {
             None
