@@ -305,8 +305,8 @@ fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
         "report and asset disagree on the SH layer: {a}"
     );
     // Subsamples: timed on the chosen rung only with headroom at one sample, kept only where
-    // they still afford the rung's steps, and what the asset's renderer records.
-    use dnr_bake::auto::size::{MIN_STEPS, SUPERSAMPLE_HEADROOM};
+    // they still afford their floor of steps, and what the asset's renderer records.
+    use dnr_bake::auto::size::{MIN_STEPS, SUPERSAMPLE_HEADROOM, SUPERSAMPLE_MIN_STEPS};
     let rungs = a["rungs"].as_array().expect("rung trials");
     let chosen: Vec<_> = rungs.iter().filter(|t| t["chosen"] == true).collect();
     assert_eq!(chosen.len(), 1, "one chosen trial: {rungs:?}");
@@ -326,7 +326,7 @@ fn auto_report(capture: &Path, budget: &str, dir: &Path) -> serde_json::Value {
     let s = chosen[0]["supersample"].as_u64().unwrap();
     assert_eq!(
         s == 2,
-        steps(2).is_some_and(|t| t >= MIN_STEPS),
+        steps(2).is_some_and(|t| t >= SUPERSAMPLE_MIN_STEPS),
         "{rungs:?}"
     );
     assert_eq!(u64::from(ext.renderers[0].supersample_factor()), s);

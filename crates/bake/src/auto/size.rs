@@ -76,8 +76,8 @@ pub struct RungTrial {
 ///
 /// With `cfg.supersample` above 1, the chosen rung is timed again with its subsamples when
 /// it affords [`SUPERSAMPLE_HEADROOM`] times [`MIN_STEPS`] without them, and trains with them
-/// if it still affords [`MIN_STEPS`]. Supersampling costs about twice the step, so a short
-/// budget keeps the rung and the step count it had without it.
+/// if it still affords [`SUPERSAMPLE_MIN_STEPS`]. Supersampling costs about twice the step,
+/// so a short budget keeps the rung and the step count it had without it.
 pub fn choose(
     cfg: &TrainConfig,
     fit: &[View],
@@ -96,7 +96,7 @@ pub fn choose(
         }
         if cfg.supersample > 1 && headroom {
             let (ts, cs, t2) = time_rung(cfg, fit, sh, r, cfg.supersample, t_analysis)?;
-            let affords = t2.steps_in_budget >= MIN_STEPS;
+            let affords = t2.steps_in_budget >= SUPERSAMPLE_MIN_STEPS;
             trials.push(t2);
             if affords {
                 trials.last_mut().expect("pushed").chosen = true;
@@ -117,6 +117,14 @@ pub fn choose(
 /// Steps a rung must afford at one sample per pixel before it is timed with subsamples,
 /// in units of [`MIN_STEPS`] (the subsamples about halve the step rate).
 pub const SUPERSAMPLE_HEADROOM: f64 = 1.5;
+
+/// Steps the chosen rung must still afford with its subsamples to keep them. Below
+/// [`MIN_STEPS`]: on every capture of the development set, 2x2 bakes of 300 s had passed the
+/// one-sample 300 s bake's final held-out PSNR (3000 to 5000 steps) by about their 2000th
+/// step, still mid-schedule (docs/benchmarks.md, "Supersampled features"). A floor at
+/// [`MIN_STEPS`] sat at the edge of a 300 s budget, where a loaded host's slower step flipped
+/// the choice.
+pub const SUPERSAMPLE_MIN_STEPS: f64 = 2000.0;
 
 /// A trainer of rung `r` at `s x s` subsamples, its classical texture, and its timing (not
 /// yet chosen).
