@@ -449,9 +449,8 @@ pub fn decide_size(
             .collect::<Vec<_>>()
             .join("; ")
             + &format!(
-                " (a rung needs {}; it is timed with its subsamples where it affords {:.1}x that, and keeps them where it still affords {}); pixel footprint in uv {:.2e} / {:.2e} / {:.2e} at quantiles 0.1 / 0.5 / 0.9: {} texels of side resolve a pixel of the closer views",
+                " (a rung needs {}; a rung that does is timed with its subsamples, and keeps them where it still affords {}); pixel footprint in uv {:.2e} / {:.2e} / {:.2e} at quantiles 0.1 / 0.5 / 0.9: {} texels of side resolve a pixel of the closer views",
                 size::MIN_STEPS,
-                size::SUPERSAMPLE_HEADROOM,
                 size::SUPERSAMPLE_MIN_STEPS,
                 fp.quantiles[0],
                 fp.quantiles[2],

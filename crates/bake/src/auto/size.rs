@@ -74,9 +74,9 @@ pub struct RungTrial {
 /// classical texture), and every trial. `cfg.time_budget` is the whole budget; the time since
 /// `t_analysis` counts against it.
 ///
-/// With `cfg.supersample` above 1, the chosen rung is timed again with its subsamples when
-/// it affords [`SUPERSAMPLE_HEADROOM`] times [`MIN_STEPS`] without them, and trains with them
-/// if it still affords [`SUPERSAMPLE_MIN_STEPS`]. Supersampling costs about twice the step,
+/// With `cfg.supersample` above 1, a rung chosen on its merit (one that affords
+/// [`MIN_STEPS`], not the last resort) is timed again with its subsamples, and trains with
+/// them if it still affords [`SUPERSAMPLE_MIN_STEPS`]. Supersampling costs about twice the step,
 /// so a short budget keeps the rung and the step count it had without it.
 pub fn choose(
     cfg: &TrainConfig,
@@ -88,13 +88,13 @@ pub fn choose(
     let mut trials = Vec::new();
     for (i, r) in RUNGS.iter().enumerate() {
         let (tr, classical, trial) = time_rung(cfg, fit, sh, r, 1, t_analysis)?;
-        let ok = trial.steps_in_budget >= MIN_STEPS || i + 1 == RUNGS.len();
-        let headroom = trial.steps_in_budget >= SUPERSAMPLE_HEADROOM * MIN_STEPS;
+        let merit = trial.steps_in_budget >= MIN_STEPS;
+        let ok = merit || i + 1 == RUNGS.len();
         trials.push(trial);
         if !ok {
             continue;
         }
-        if cfg.supersample > 1 && headroom {
+        if cfg.supersample > 1 && merit {
             let (ts, cs, t2) = time_rung(cfg, fit, sh, r, cfg.supersample, t_analysis)?;
             let affords = t2.steps_in_budget >= SUPERSAMPLE_MIN_STEPS;
             trials.push(t2);
@@ -114,20 +114,14 @@ pub fn choose(
     unreachable!("the last rung is always chosen")
 }
 
-/// Steps a rung must afford at one sample per pixel before it is timed with subsamples, in
-/// units of [`MIN_STEPS`]: a rung chosen on its merit is timed, the last-resort rung is not.
-/// Subsamples cost at least 1.25x the step (1.26x to 2.1x measured on the development set),
-/// so a rung that affords fewer than [`MIN_STEPS`] without them cannot afford
-/// [`SUPERSAMPLE_MIN_STEPS`] with them, and its trial would be time lost. A gate at 1.5 kept
-/// a slow host's 300 s bakes from even trying them.
-pub const SUPERSAMPLE_HEADROOM: f64 = 1.0;
-
 /// Steps the chosen rung must still afford with its subsamples to keep them. Below
 /// [`MIN_STEPS`]: on every capture of the development set, 2x2 bakes of 300 s had passed the
 /// one-sample 300 s bake's final held-out PSNR (3000 to 5000 steps) by about their 2000th
 /// step, still mid-schedule (docs/benchmarks.md, "Supersampled features"). A floor at
 /// [`MIN_STEPS`] sat at the edge of a 300 s budget, where a loaded host's slower step flipped
-/// the choice.
+/// the choice. Subsamples cost at least 1.25x the step (1.26x to 2.1x measured there), so a
+/// rung that affords fewer than [`MIN_STEPS`] without them could not keep them: it is not
+/// timed with them.
 pub const SUPERSAMPLE_MIN_STEPS: f64 = 2000.0;
 
 /// A trainer of rung `r` at `s x s` subsamples, its classical texture, and its timing (not
