@@ -7,7 +7,7 @@ use dnr_bake::capture::{Capture, LoadOptions};
 use dnr_bake::train::config::{Arch, Preset, TrainConfig, DEFAULT_SUPERSAMPLE};
 use dnr_bake::train::schedule::Schedule;
 use dnr_bake::train::views::{self, View};
-use dnr_bake::train::{run, RunState, Trainer};
+use dnr_bake::train::{run, Loss, RunState, Trainer};
 
 fn sample_views() -> (Vec<View>, Vec<View>) {
     let dir = capture_common::sample_capture();
@@ -154,4 +154,24 @@ fn a_finest_level_of_noise_is_removed_and_one_within_the_bound_kept() {
     assert!(!c.removed && c.with_db - c.without_db >= -1.0, "{c:?}");
     assert_eq!(t.pyr.levels.len(), 3);
     assert_eq!(t.pyr.levels[0].data, trained.levels[0].data);
+}
+
+#[test]
+fn both_photometric_losses_train_the_sample() {
+    let (fit, val) = sample_views();
+    let start = {
+        let t = Trainer::new(cfg(2e-3, 80), &fit).unwrap();
+        dnr_bake::train::run::mean_psnr(&t, &val).unwrap()
+    };
+    for loss in [Loss::L1, Loss::L2] {
+        let mut c = cfg(2e-3, 80);
+        c.loss = loss;
+        let (t, _) = train_quietly(c, &fit, &val);
+        let now = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
+        eprintln!("{loss}: {start:.2} -> {now:.2} dB");
+        assert!(
+            now > start + 3.0,
+            "{loss}: validation {start:.2} -> {now:.2} dB in 80 steps"
+        );
+    }
 }

@@ -1,15 +1,17 @@
 //! Joint optimisation of the neural texture and the renderer (the paper's Section 5): random
-//! crops (or whole frames), L1 photometric loss, mean-colour loss on channels 0..2, per-level
-//! L2 regularisation, Adam. One step reads top to bottom in [`Trainer::step`].
+//! crops (or whole frames), a photometric loss (the paper's L1, or squared error), mean-colour
+//! loss on channels 0..2, per-level L2 regularisation, Adam. One step reads top to bottom in [`Trainer::step`].
 
 pub mod checkpoint;
 pub mod config;
 pub mod init;
+pub mod photometric;
 pub mod quantise;
 pub mod run;
 pub mod schedule;
 pub mod views;
 
+pub use photometric::{photometric_l1, photometric_loss, Loss};
 pub use run::{run, Checkpointing, Recovery, RunState, MAX_RECOVERIES, PSNR_COLLAPSE_DB};
 
 use std::borrow::Cow;
@@ -25,7 +27,6 @@ use dnr_runtime::supersample::{box_mean, box_mean_adjoint};
 use dnr_runtime::texture::{sample_into, Pyramid, Wrap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::eval::metrics::{view_error_masked, Rgba, ViewError};
@@ -553,7 +554,7 @@ impl Trainer {
         Ok(())
     }
 
-    /// One optimisation step on one crop; returns the photometric L1.
+    /// One optimisation step on one crop; returns the photometric L1 (whatever the loss).
     ///
     /// The network's gradients are zero between steps (the fused Adam step clears them),
     /// and large buffers go back to the runtime's tensor pool, so a step allocates little.
@@ -635,7 +636,8 @@ impl Trainer {
                 let fwd = net.forward(&x);
                 let out = fwd.map(|(y, acts)| {
                     let mut dy = Tensor::zeros(self.out_ch, h, w);
-                    let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                    let loss =
+                        photometric_loss(&y.data, v, self.out_ch, self.cfg.loss, &mut dy.data);
                     y.recycle();
                     lap(&mut t, &mut ph.forward);
                     let dx = net.backward(&acts, &dy);
@@ -658,7 +660,8 @@ impl Trainer {
                 let fwd = net.forward_frame(&x, &covered);
                 let out = fwd.map(|(y, acts)| {
                     let mut dy = Tensor::zeros(self.out_ch, h, w);
-                    let loss = photometric_l1(&y.data, v, self.out_ch, &mut dy.data);
+                    let loss =
+                        photometric_loss(&y.data, v, self.out_ch, self.cfg.loss, &mut dy.data);
                     y.recycle();
                     lap(&mut t, &mut ph.forward);
                     let dx = net.backward_frame(&acts, &dy);
@@ -1057,108 +1060,4 @@ fn uvs_in_unit_square(views: &[View]) -> bool {
             c == 0.0 || (-1e-3..=1.001).contains(&uv[0]) && (-1e-3..=1.001).contains(&uv[1])
         })
     })
-}
-
-/// Pixels per parallel chunk of [`photometric_l1`] (fixed: the loss is the same for any
-/// thread count).
-const LOSS_CHUNK: usize = 4096;
-
-/// The photometric loss of a renderer output `y` (U-Net or MLP, after tanh, `out_ch x n`,
-/// n = the view's pixels) and its gradient, written to `dy` (same shape), in one pass:
-/// `colour = (t + 1) / 2`, `alpha = (t3 + 1) / 2` with 4 outputs (else the coverage),
-/// `comp = colour * alpha + (1 - alpha)` (on white, like the target), `L = mean |comp - target|`
-/// over 3 x n, plus with 4 outputs the mean L1 of alpha against the mask (gradient only).
-/// Pixels the view marks invalid (masked out, outside the undistorted photograph) give no
-/// loss and no gradient, and n counts only the valid ones.
-/// The gradient is [`l1_loss`]'s, term by term, bit for bit; the loss sums fixed chunks of
-/// pixels in parallel and adds their sums in chunk order (the same for any thread count).
-///
-/// Panics if `y`, `dy` or the view's target do not have those shapes (trainer-internal data).
-pub fn photometric_l1(y: &[f32], v: &View, out_ch: usize, dy: &mut [f32]) -> f64 {
-    let n = v.gbuf.len();
-    assert!(
-        y.len() == out_ch * n && dy.len() == out_ch * n && v.target.len() >= 3 * n,
-        "photometric loss: shapes"
-    );
-    // Valid pixels only (all of them for a view without a validity mask).
-    let nv = v
-        .valid
-        .as_ref()
-        .map_or(n, |m| m.iter().filter(|&&b| b).count());
-    if nv == 0 {
-        dy.fill(0.0);
-        return 0.0;
-    }
-    // l1_loss's scale / (channels * pixels) for the colour and the alpha term.
-    let g = (1.0f64 / (3.0 * nv as f64)) as f32;
-    let ga = (1.0f64 / nv as f64) as f32;
-    let (ycol, yal) = y.split_at(3 * n);
-    let (dcol, dal) = dy.split_at_mut(3 * n);
-    let (d0, rest) = dcol.split_at_mut(n);
-    let (d1, d2) = rest.split_at_mut(n);
-    // Fixed chunks of pixels in parallel (the per-chunk sums are added in chunk order, so the
-    // loss does not depend on the thread count); every pixel's gradient is its own.
-    let alpha_chunks: Vec<Option<&mut [f32]>> = if out_ch == 4 {
-        dal.chunks_mut(LOSS_CHUNK).map(Some).collect()
-    } else {
-        (0..n.div_ceil(LOSS_CHUNK)).map(|_| None).collect()
-    };
-    let chunks: Vec<_> = d0
-        .chunks_mut(LOSS_CHUNK)
-        .zip(d1.chunks_mut(LOSS_CHUNK))
-        .zip(d2.chunks_mut(LOSS_CHUNK))
-        .zip(alpha_chunks)
-        .enumerate()
-        .collect();
-    let partial: Vec<[f64; 3]> = chunks
-        .into_par_iter()
-        .map(|(ci, (((c0, c1), c2), mut dal))| {
-            let i0 = ci * LOSS_CHUNK;
-            let mut dcol = [c0, c1, c2];
-            let mut sums = [0.0f64; 3];
-            for j in 0..dcol[0].len() {
-                let i = i0 + j;
-                if !v.is_valid(i) {
-                    for d in dcol.iter_mut() {
-                        d[j] = 0.0;
-                    }
-                    if let Some(dal) = dal.as_deref_mut() {
-                        dal[j] = 0.0;
-                    }
-                    continue;
-                }
-                let a = if out_ch == 4 {
-                    0.5 * (yal[i] + 1.0)
-                } else {
-                    v.gbuf.coverage[i]
-                };
-                // dL/dalpha: the alpha L1 first, then each colour channel's share.
-                let mut da = 0.0f32;
-                if out_ch == 4 {
-                    let d = a - v.alpha[i];
-                    if d != 0.0 {
-                        da = ga * d.signum();
-                    }
-                }
-                for (c, s) in sums.iter_mut().enumerate() {
-                    let col = 0.5 * (ycol[c * n + i] + 1.0);
-                    let comp = col * a + (1.0 - a);
-                    let d = comp - v.target[c * n + i];
-                    *s += d.abs() as f64;
-                    let dcomp = if d != 0.0 { g * d.signum() } else { 0.0 };
-                    // comp = colour * a + (1 - a), colour = (t + 1) / 2.
-                    dcol[c][j] = 0.5 * dcomp * a;
-                    da += dcomp * (col - 1.0);
-                }
-                if let Some(dal) = dal.as_deref_mut() {
-                    dal[j] = 0.5 * da;
-                }
-            }
-            sums
-        })
-        .collect();
-    let sums = partial.iter().fold([0.0f64; 3], |acc, s| {
-        [acc[0] + s[0], acc[1] + s[1], acc[2] + s[2]]
-    });
-    (sums[0] + sums[1] + sums[2]) / (3.0 * nv as f64)
 }
