@@ -175,3 +175,40 @@ fn both_photometric_losses_train_the_sample() {
         );
     }
 }
+
+#[test]
+fn a_call_that_only_loses_on_validation_hands_back_its_start() {
+    let (fit, val) = sample_views();
+    // A trained state, then a second call (as auto's later phases are) at a rate far too
+    // high: every check of that call is worse than the state it started from.
+    let (mut t, mut state) = train_quietly(cfg(2e-3, 80), &fit, &val);
+    let start = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
+    let checks_before = state.checks.len();
+    t.cfg.steps = 160;
+    t.cfg.schedule = Schedule::CONSTANT;
+    t.set_learning_rates(0.5, 0.5);
+    run(
+        &mut t,
+        &mut state,
+        1.0,
+        &fit,
+        &val,
+        &[],
+        None,
+        |_, _| {},
+        |_| {},
+    )
+    .unwrap();
+    let new_checks: Vec<f64> = state.checks[checks_before..].iter().map(|c| c.2).collect();
+    eprintln!("start {start:.3} dB, this call's checks {new_checks:?}");
+    assert!(
+        !new_checks.is_empty() && new_checks.iter().all(|&v| v < start),
+        "the scenario needs a call whose every check is worse than its start: {new_checks:?} vs {start}"
+    );
+    let now = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
+    assert!(
+        (now - start).abs() < 1e-9,
+        "final {now} dB, start {start} dB"
+    );
+    assert_eq!(t.step, 80, "the start state (step 80) must be handed back");
+}

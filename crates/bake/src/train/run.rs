@@ -102,7 +102,7 @@ pub fn mean_psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
 /// - Every `1 / VAL_CHECKS` of progress (and at the end) the validation views are rendered;
 ///   the best state so far is kept, and when the call ends the best state replaces the final
 ///   one if that is worse, so the result is never worse on validation than an earlier state
-///   of the same call.
+///   of the same call, its starting state included (measured when the call begins).
 /// - Divergence recovery: a non-finite training loss, or a validation PSNR that is
 ///   non-finite or [`PSNR_COLLAPSE_DB`] below the best so far, rolls the trainer back to the
 ///   best state (or the start), halves both base learning rates and records a [`Recovery`];
@@ -136,8 +136,20 @@ pub fn run(
         |t: &Trainer, s: &RunState| schedule::progress(s.train_secs, budget, t.step, steps);
     let until = until.clamp(0.0, 1.0);
     let mut last_ckpt = Instant::now();
-    // The best validated state so far (the start counts as good, with no figure).
-    let mut best: (Checkpoint, f64) = (trainer.checkpoint(state), f64::NEG_INFINITY);
+    // The best validated state so far, starting with the state this call starts from: auto
+    // trains in phases (one call each), and a phase that only loses on validation must hand
+    // back its start, not the best of its own checks.
+    let start_val = if val.is_empty() {
+        f64::NEG_INFINITY
+    } else {
+        let v = mean_psnr(trainer, val)?;
+        if v.is_finite() {
+            v
+        } else {
+            f64::NEG_INFINITY
+        }
+    };
+    let mut best: (Checkpoint, f64) = (trainer.checkpoint(state), start_val);
     let recover = |trainer: &mut Trainer,
                    state: &mut RunState,
                    good: &Checkpoint,
