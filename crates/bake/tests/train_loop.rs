@@ -47,19 +47,13 @@ fn cfg(lr: f32, steps: u64) -> TrainConfig {
 fn train_quietly(c: TrainConfig, fit: &[View], val: &[View]) -> (Trainer, RunState) {
     let mut t = Trainer::new(c, fit).unwrap();
     let mut state = RunState::default();
-    run(
-        &mut t,
-        &mut state,
-        1.0,
-        fit,
-        val,
-        &[],
-        None,
-        |_, _| {},
-        |_| {},
-    )
-    .unwrap();
+    run_quietly(&mut t, &mut state, fit, val);
     (t, state)
+}
+
+/// One call of the loop to the end of the run, with no test views and no callbacks.
+fn run_quietly(t: &mut Trainer, state: &mut RunState, fit: &[View], val: &[View]) {
+    run(t, state, 1.0, fit, val, &[], None, |_, _| {}, |_| {}).unwrap();
 }
 
 #[test]
@@ -187,18 +181,7 @@ fn a_call_that_only_loses_on_validation_hands_back_its_start() {
     t.cfg.steps = 160;
     t.cfg.schedule = Schedule::CONSTANT;
     t.set_learning_rates(0.5, 0.5);
-    run(
-        &mut t,
-        &mut state,
-        1.0,
-        &fit,
-        &val,
-        &[],
-        None,
-        |_, _| {},
-        |_| {},
-    )
-    .unwrap();
+    run_quietly(&mut t, &mut state, &fit, &val);
     let new_checks: Vec<f64> = state.checks[checks_before..].iter().map(|c| c.2).collect();
     eprintln!("start {start:.3} dB, this call's checks {new_checks:?}");
     assert!(
