@@ -96,6 +96,11 @@ struct Args {
     /// Drop the spherical-harmonics view-dependent layer.
     #[arg(long)]
     no_sh: bool,
+    /// Degree of the spherical-harmonics layer, 0 to 3: it modulates (degree + 1)^2 channels
+    /// from channel 3, so 3 needs --channels 19 or more. Fixed presets use the paper's 2;
+    /// auto takes 3 (and 20 channels) when the training images show sharp view dependence.
+    #[arg(long, value_name = "DEGREE")]
+    sh_degree: Option<u32>,
     /// Renderer architecture: none (texture only), mlp, unet.
     #[arg(long)]
     arch: Option<Arch>,
@@ -201,8 +206,9 @@ struct Args {
 }
 
 /// The flags `--preset auto` decides itself, and whether each was given.
-fn auto_decided(a: &Args) -> [(&'static str, bool); 6] {
+fn auto_decided(a: &Args) -> [(&'static str, bool); 7] {
     [
+        ("--sh-degree", a.sh_degree.is_some()),
         ("--resolution", a.resolution.is_some()),
         ("--levels", a.levels.is_some()),
         ("--no-sh", a.no_sh),
@@ -235,6 +241,9 @@ fn config(a: &Args) -> TrainConfig {
     }
     if a.no_sh {
         c.sh = false;
+    }
+    if let Some(v) = a.sh_degree {
+        c.sh_degree = v;
     }
     if let Some(v) = a.arch {
         c.arch = v;

@@ -36,6 +36,25 @@ fn diffuse_scene_is_not_view_dependent_and_highlights_are() {
     assert!(g.excess_explained > 2.0 * g.threshold, "{g:?}");
 }
 
+#[test]
+fn a_sharp_highlight_asks_for_degree_3_and_a_diffuse_scene_does_not() {
+    // The degree-3 functions explain the narrow Phong lobe's residual after degree 2; on a
+    // diffuse sphere they explain no more than chance.
+    let (_d, _c, diffuse) = views_of(0.0);
+    let (_s, _c2, glossy) = views_of(0.6);
+    let d = view_dependence::measure(&diffuse);
+    let g = view_dependence::measure(&glossy);
+    assert!(
+        d.excess_explained_degree3 < 0.25 * d.degree3_threshold,
+        "{d:?}"
+    );
+    assert_eq!(g.degree, 3, "{g:?}");
+    assert!(
+        g.excess_explained_degree3 > 1.5 * g.degree3_threshold,
+        "{g:?}"
+    );
+}
+
 fn small_cfg() -> TrainConfig {
     TrainConfig {
         resolution: 64,

@@ -11,7 +11,9 @@
 //!    training; they decide, and the capture's test views stay untouched for the reported
 //!    error.
 //! 2. [`decide_view_dependence`]: the SH layer is kept only when the training images show
-//!    colour that follows the view direction ([`view_dependence`]).
+//!    colour that follows the view direction ([`view_dependence`]), at degree 3 (with
+//!    [`DEGREE3_CHANNELS`] channels) when the degree-3 functions explain as much again of what
+//!    degree 2 leaves.
 //! 3. [`decide_size`]: the largest rung of [`size::RUNGS`] whose step, timed here on this
 //!    capture, allows at least [`size::MIN_STEPS`] steps; its finest texture level no finer
 //!    than the training pixels resolve ([`footprint`]). With 2x2 subsamples per pixel (the
@@ -200,6 +202,8 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let cfg = TrainConfig {
         time_budget: budget,
         supersample: loaded.supersample,
+        sh_degree: vd.degree,
+        channels: channels_for(cfg.channels, &vd),
         ..cfg.clone()
     };
     let sized = decide_size(
@@ -240,7 +244,11 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let progress = Progress::new(opts.progress, &tr.cfg);
     progress.println(&format!(
         "dnr-bake auto: SH {}, {}, {} validation views",
-        if vd.view_dependent { "kept" } else { "dropped" },
+        if vd.view_dependent {
+            format!("kept at degree {}", vd.degree)
+        } else {
+            "dropped".into()
+        },
         sized.summary,
         loaded.val_idx.len()
     ));
@@ -377,7 +385,22 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     pipeline::finish(&loaded, &parts, outcome, opts, t_start)
 }
 
-/// Phase 2: keep the SH layer only when the training images show view-dependent colour.
+/// Channels of a degree-3 SH layer: its 16 functions from channel 3 need 19, and 20 fill the
+/// last group of four the web viewer samples at once.
+pub const DEGREE3_CHANNELS: u32 = 20;
+
+/// The texture's channels for the SH layer auto chose: at least [`DEGREE3_CHANNELS`] at
+/// degree 3, else as configured.
+fn channels_for(channels: u32, vd: &view_dependence::ViewDependence) -> u32 {
+    if vd.view_dependent && vd.degree >= 3 {
+        channels.max(DEGREE3_CHANNELS)
+    } else {
+        channels
+    }
+}
+
+/// Phase 2: keep the SH layer only when the training images show view-dependent colour,
+/// at degree 3 when they show sharper view dependence than degree 2 fits.
 pub fn decide_view_dependence(
     fit: &[View],
     decisions: &mut Vec<Decision>,
@@ -385,14 +408,21 @@ pub fn decide_view_dependence(
     let vd = view_dependence::measure(fit);
     decisions.push(Decision::plain(
         "view dependence",
-        if vd.view_dependent {
-            "keep the SH layer".into()
-        } else {
+        if !vd.view_dependent {
             "drop the SH layer".into()
+        } else if vd.degree >= 3 {
+            format!("keep the SH layer at degree 3 ({DEGREE3_CHANNELS} channels)")
+        } else {
+            "keep the SH layer at degree 2".into()
         },
         format!(
-            "the view direction explains {:.3} of the within-texel colour variance beyond chance ({} texels, {} observations; threshold {})",
-            vd.excess_explained, vd.texels, vd.observations, vd.threshold
+            "the view direction explains {:.3} of the within-texel colour variance beyond chance ({} texels, {} observations; threshold {}); degree 3 explains {:.3} more than degree 2 (threshold {})",
+            vd.excess_explained,
+            vd.texels,
+            vd.observations,
+            vd.threshold,
+            vd.excess_explained_degree3,
+            vd.degree3_threshold
         ),
     ));
     vd

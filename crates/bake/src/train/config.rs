@@ -4,6 +4,7 @@ use serde::Serialize;
 
 use super::photometric::Loss;
 use super::schedule::Schedule;
+use super::SH_DEGREE;
 
 /// Which renderer architecture to train.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -90,8 +91,11 @@ pub struct TrainConfig {
     pub levels: u32,
     /// Feature channels per texel.
     pub channels: u32,
-    /// Whether channels 3..12 are modulated by the degree-2 SH basis of the view direction.
+    /// Whether channels 3.. are modulated by the SH basis of the view direction.
     pub sh: bool,
+    /// Degree of that basis: channels `3 .. 3 + (degree + 1)^2` are modulated (0 to 3; the
+    /// paper's 2 modulates 9 channels, 3 modulates 16 and needs 19 channels).
+    pub sh_degree: u32,
     /// Renderer architecture.
     pub arch: Arch,
     /// U-Net widths (or MLP hidden widths).
@@ -137,6 +141,7 @@ impl TrainConfig {
             levels: 4,
             channels: 16,
             sh: true,
+            sh_degree: SH_DEGREE,
             arch: Arch::Unet,
             widths: vec![16, 32, 64, 128, 128],
             crop: 0,

@@ -254,9 +254,18 @@ impl Trainer {
     /// Starts from the classical texture (see [`init`]) and a seeded network.
     pub fn new(cfg: TrainConfig, train: &[View]) -> Result<Trainer, TrainError> {
         let c = cfg.channels as usize;
-        if cfg.sh && c < (SH_FIRST + (SH_DEGREE + 1).pow(2)) as usize {
+        if cfg.sh && cfg.sh_degree > dnr_runtime::sh::MAX_DEGREE {
             return Err(TrainError::Config(format!(
-                "{c} channels: the SH layer needs at least 12 (or --no-sh)"
+                "SH degree {}: the extension defines degrees 0 to {}",
+                cfg.sh_degree,
+                dnr_runtime::sh::MAX_DEGREE
+            )));
+        }
+        let sh_end = (SH_FIRST + (cfg.sh_degree.min(3) + 1).pow(2)) as usize;
+        if cfg.sh && c < sh_end {
+            return Err(TrainError::Config(format!(
+                "{c} channels: the degree-{} SH layer needs at least {sh_end} (or --no-sh)",
+                cfg.sh_degree
             )));
         }
         if c < 3
@@ -474,7 +483,7 @@ impl Trainer {
     }
 
     fn sh(&self) -> Option<(u32, u32)> {
-        self.cfg.sh.then_some((SH_DEGREE, SH_FIRST))
+        self.cfg.sh.then_some((self.cfg.sh_degree, SH_FIRST))
     }
 
     /// Picks a training view and a crop of it that shows object pixels (a whole frame is
