@@ -501,3 +501,57 @@ fn auto_preset_with_auto_storage_fine_tunes_through_the_rounding_and_keeps_the_b
     assert!((chosen["testPsnr"].as_f64().unwrap() - test).abs() < 1e-9);
     assert!(test > 20.0, "{}", r["summary"]);
 }
+
+#[test]
+fn a_degree_3_sh_layer_bakes_validates_and_renders_as_trained() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sh3.glb");
+    let report = dir.path().join("sh3.report.json");
+    let summary = bake_json(
+        &[
+            "--preset",
+            "fast",
+            "--sh-degree",
+            "3",
+            "--channels",
+            "20",
+            "--steps",
+            "40",
+            "--report",
+            report.to_str().unwrap(),
+        ],
+        &out,
+    );
+    let v = dnr_format::validate_file(&out, &dnr_format::Limits::default()).unwrap();
+    assert!(!v.has_errors(), "{v:?}");
+    // The asset declares the degree the baker trained with.
+    let glb = std::fs::read(&out).unwrap();
+    let n = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let json: serde_json::Value = serde_json::from_slice(&glb[20..20 + n]).unwrap();
+    let vd = json
+        .pointer("/extensions/EXT_deferred_neural_rendering/neuralTextures/0/viewDependence")
+        .unwrap_or_else(|| panic!("no viewDependence in {json}"));
+    assert_eq!(vd["degree"], 3, "{vd}");
+    // The runtime's render of the stored (f16) asset is the trainer's forward.
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let trained = r["records"].as_array().unwrap().last().unwrap()["test_psnr"]
+        .as_f64()
+        .unwrap();
+    let rendered = summary["testPsnr"].as_f64().unwrap();
+    assert!(
+        (trained - rendered).abs() < 0.1,
+        "trainer {trained:.3} dB, runtime {rendered:.3} dB"
+    );
+}
+
+#[test]
+fn an_sh_degree_the_channels_cannot_hold_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    small_copy(dir.path());
+    expect_error_with(dir.path(), &["--sh-degree", "3"], "needs at least 19");
+    expect_error_with(
+        dir.path(),
+        &["--sh-degree", "4", "--channels", "32"],
+        "degrees 0 to 3",
+    );
+}
