@@ -18,12 +18,22 @@ fn views_of(specular: f32) -> (tempfile::TempDir, Capture, Vec<View>) {
     (dir, cap, v)
 }
 
-#[test]
-fn diffuse_scene_is_not_view_dependent_and_highlights_are() {
+/// The view-dependence test on a diffuse sphere and on one with a Phong highlight.
+fn measure_diffuse_and_glossy() -> (
+    view_dependence::ViewDependence,
+    view_dependence::ViewDependence,
+) {
     let (_d, _c, diffuse) = views_of(0.0);
     let (_s, _c2, glossy) = views_of(0.6);
-    let d = view_dependence::measure(&diffuse);
-    let g = view_dependence::measure(&glossy);
+    (
+        view_dependence::measure(&diffuse),
+        view_dependence::measure(&glossy),
+    )
+}
+
+#[test]
+fn diffuse_scene_is_not_view_dependent_and_highlights_are() {
+    let (d, g) = measure_diffuse_and_glossy();
     eprintln!("diffuse {d:?}\nglossy {g:?}");
     assert!(d.texels > 100 && g.texels > 100, "too few texels measured");
     assert!(
@@ -40,10 +50,7 @@ fn diffuse_scene_is_not_view_dependent_and_highlights_are() {
 fn a_sharp_highlight_asks_for_degree_3_and_a_diffuse_scene_does_not() {
     // The degree-3 functions explain the narrow Phong lobe's residual after degree 2; on a
     // diffuse sphere they explain no more than chance.
-    let (_d, _c, diffuse) = views_of(0.0);
-    let (_s, _c2, glossy) = views_of(0.6);
-    let d = view_dependence::measure(&diffuse);
-    let g = view_dependence::measure(&glossy);
+    let (d, g) = measure_diffuse_and_glossy();
     assert!(
         d.excess_explained_degree3 < 0.25 * d.degree3_threshold,
         "{d:?}"
