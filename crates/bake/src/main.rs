@@ -90,7 +90,7 @@ struct Args {
     /// Number of pyramid levels.
     #[arg(long)]
     levels: Option<u32>,
-    /// Feature channels per texel (>= 12 with SH, >= 3 otherwise).
+    /// Feature channels per texel (>= 12 with SH at degree 2, >= 19 at degree 3, >= 3 without).
     #[arg(long)]
     channels: Option<u32>,
     /// Drop the spherical-harmonics view-dependent layer.

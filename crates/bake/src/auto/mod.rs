@@ -12,8 +12,8 @@
 //!    error.
 //! 2. [`decide_view_dependence`]: the SH layer is kept only when the training images show
 //!    colour that follows the view direction ([`view_dependence`]), at degree 3 (with
-//!    [`DEGREE3_CHANNELS`] channels) when the degree-3 functions explain as much again of what
-//!    degree 2 leaves.
+//!    [`DEGREE3_CHANNELS`] channels) when the degree-3 functions explain, beyond chance, more
+//!    of what degree 2 leaves than the bar the layer itself must pass.
 //! 3. [`decide_size`]: the largest rung of [`size::RUNGS`] whose step, timed here on this
 //!    capture, allows at least [`size::MIN_STEPS`] steps; its finest texture level no finer
 //!    than the training pixels resolve ([`footprint`]). With 2x2 subsamples per pixel (the

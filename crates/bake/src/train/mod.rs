@@ -261,7 +261,8 @@ impl Trainer {
                 dnr_runtime::sh::MAX_DEGREE
             )));
         }
-        let sh_end = (SH_FIRST + (cfg.sh_degree.min(3) + 1).pow(2)) as usize;
+        let sh_end =
+            (SH_FIRST + (cfg.sh_degree.min(dnr_runtime::sh::MAX_DEGREE) + 1).pow(2)) as usize;
         if cfg.sh && c < sh_end {
             return Err(TrainError::Config(format!(
                 "{c} channels: the degree-{} SH layer needs at least {sh_end} (or --no-sh)",
