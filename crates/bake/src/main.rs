@@ -150,6 +150,12 @@ struct Args {
     /// writes an asset every revision 1.0 reader draws exactly.
     #[arg(long, value_name = "S", value_parser = clap::value_parser!(u32).range(1..=4))]
     supersample: Option<u32>,
+    /// Per-step decay of the moving average of the texture and the weights (Polyak
+    /// averaging) that each validation check weighs against the current state; the better
+    /// on validation is kept. Default 0 (off): 0.995 moved held-out PSNR by -0.12 to
+    /// +0.08 dB at 300 s on the development set, within run-to-run spread.
+    #[arg(long, value_name = "DECAY")]
+    ema: Option<f32>,
     /// Random seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -290,6 +296,9 @@ fn config(a: &Args) -> TrainConfig {
     }
     if let Some(v) = a.supersample {
         c.supersample = v;
+    }
+    if let Some(v) = a.ema {
+        c.ema = v;
     }
     if let Some(v) = a.seed {
         c.seed = v;

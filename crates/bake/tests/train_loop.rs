@@ -195,3 +195,55 @@ fn a_call_that_only_loses_on_validation_hands_back_its_start() {
     );
     assert_eq!(t.step, 80, "the start state (step 80) must be handed back");
 }
+
+#[test]
+fn the_moving_average_competes_with_the_state_and_the_best_of_both_is_kept() {
+    let (fit, val) = sample_views();
+    // A noisy constant rate (as above), with an average over about 10 steps.
+    let mut c = cfg(3e-2, 120);
+    c.schedule = Schedule::CONSTANT;
+    c.ema = 0.9;
+    let (mut t, state) = train_quietly(c, &fit, &val);
+    eprintln!("checks {:?}\naverage {:?}", state.checks, state.ema_checks);
+    assert!(
+        state.ema_checks.len() >= 10,
+        "the average must be checked beside the state once warm: {:?}",
+        state.ema_checks
+    );
+    let best = state
+        .checks
+        .iter()
+        .map(|c| c.2)
+        .chain(state.ema_checks.iter().map(|c| c.1))
+        .fold(f64::NEG_INFINITY, f64::max);
+    let now = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
+    assert!(
+        (now - best).abs() < 1e-9,
+        "final {now} dB, best of the state's and the average's checks {best} dB"
+    );
+    // Stepping on, the average is warm (restarted or not); exchanging it in changes the state, and
+    // exchanging twice is the identity.
+    let (ema_steps, warm) = (20, 10);
+    for _ in 0..ema_steps {
+        t.step(&fit).unwrap();
+    }
+    assert!(ema_steps >= warm + dnr_bake::train::ema::EVERY as usize);
+    let before = t.checkpoint(&RunState::default());
+    assert!(t.swap_ema(), "warm after {ema_steps} steps");
+    let swapped = t.checkpoint(&RunState::default());
+    assert!(swapped.arrays != before.arrays);
+    assert!(t.swap_ema());
+    let after = t.checkpoint(&RunState::default());
+    assert!(before.arrays == after.arrays);
+}
+
+#[test]
+fn a_decay_outside_zero_to_one_is_refused() {
+    let (fit, _) = sample_views();
+    for bad in [1.0, -0.1, f32::NAN] {
+        let mut c = cfg(1e-3, 10);
+        c.ema = bad;
+        let e = Trainer::new(c, &fit).err().expect("refused");
+        assert!(e.to_string().contains("moving-average decay"), "{e}");
+    }
+}

@@ -119,6 +119,8 @@ struct Report<'a, A: Serialize> {
     records: &'a [Record],
     /// Validation checks: `[step, training seconds, validation PSNR]`.
     validation_checks: &'a [(u64, f64, f64)],
+    /// Validation checks of the moving average of the state: `[step, validation PSNR]`.
+    ema_checks: &'a [(u64, f64)],
     /// Divergences the training loop recovered from (rollback, halved learning rates).
     recoveries: &'a [Recovery],
     /// What loading found and did: timings, UVs, the alignment check.
@@ -570,6 +572,7 @@ pub fn finish<A: Serialize>(
             warnings: &loaded.capture.warnings,
             records: &state.records,
             validation_checks: &state.checks,
+            ema_checks: &state.ema_checks,
             recoveries: &state.recoveries,
             load: &loaded.load,
             auto: outcome.auto,

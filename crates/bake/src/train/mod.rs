@@ -4,6 +4,7 @@
 
 pub mod checkpoint;
 pub mod config;
+pub mod ema;
 pub mod init;
 pub mod photometric;
 pub mod quantise;
@@ -179,6 +180,9 @@ pub struct Trainer {
     qat_fits: Option<(quantise::LevelFits, u32)>,
     /// The weights' scales during fine-tuning, refitted like the levels' ranges.
     qat_weight_fits: Option<(Vec<quantise::TensorFit>, u32)>,
+    /// The moving average of the texture and the weights (see [`ema`]), restarted whenever
+    /// the state changes other than by a step.
+    ema: Option<ema::Ema>,
 }
 
 /// Wall seconds of the phases of [`Trainer::step`], summed over steps (what `dnr bench train`
@@ -267,6 +271,12 @@ impl Trainer {
             return Err(TrainError::Config(format!(
                 "{c} channels: the degree-{} SH layer needs at least {sh_end} (or --no-sh)",
                 cfg.sh_degree
+            )));
+        }
+        if !(0.0..1.0).contains(&cfg.ema) {
+            return Err(TrainError::Config(format!(
+                "moving-average decay {}: must be at least 0 (off) and below 1",
+                cfg.ema
             )));
         }
         if c < 3
@@ -360,7 +370,65 @@ impl Trainer {
             qat: None,
             qat_fits: None,
             qat_weight_fits: None,
+            ema: None,
         })
+    }
+
+    /// The texture levels' and the network's tensors, in the moving average's order.
+    fn param_slices(&self) -> Vec<&[f32]> {
+        let mut v: Vec<&[f32]> = self.pyr.levels.iter().map(|l| &l.data[..]).collect();
+        if let Some((weights, _)) = self.net.params() {
+            v.extend(weights.iter().map(|w| &w[..]));
+        }
+        v
+    }
+
+    /// Folds the state into the moving average every [`ema::EVERY`] steps (when on).
+    fn ema_after_step(&mut self) {
+        let decay = self.cfg.ema;
+        if decay <= 0.0 || !self.step.is_multiple_of(ema::EVERY) {
+            return;
+        }
+        let mut avg = self.ema.take();
+        let cur = self.param_slices();
+        match &mut avg {
+            Some(a) if a.fits(&cur) => a.update(&cur, decay.powi(ema::EVERY as i32)),
+            _ => avg = Some(ema::Ema::start(&cur)),
+        }
+        self.ema = avg;
+    }
+
+    /// Whether [`Trainer::swap_ema`] would exchange the state with its average now.
+    pub fn ema_ready(&self) -> bool {
+        self.ema
+            .as_ref()
+            .is_some_and(|a| a.fits(&self.param_slices()) && a.warm(self.cfg.ema))
+    }
+
+    /// Exchanges the state with its moving average, when one has run for at least its time
+    /// constant; calling it again exchanges them back. Returns whether it exchanged.
+    pub fn swap_ema(&mut self) -> bool {
+        let Some(mut avg) = self.ema.take() else {
+            return false;
+        };
+        let ok = avg.fits(&self.param_slices()) && avg.warm(self.cfg.ema);
+        if ok {
+            let mut t = avg.tensors.iter_mut();
+            for l in &mut self.pyr.levels {
+                if let Some(a) = t.next() {
+                    std::mem::swap(&mut l.data, a);
+                }
+            }
+            if let Some((weights, _, _)) = self.net.params_mut() {
+                for w in weights.iter_mut() {
+                    if let Some(a) = t.next() {
+                        std::mem::swap(w, a);
+                    }
+                }
+            }
+        }
+        self.ema = Some(avg);
+        ok
     }
 
     /// Starts (or, with `None`, stops) quantisation-aware fine-tuning: from now on steps and
@@ -370,6 +438,7 @@ impl Trainer {
         self.qat = target.filter(|t| !t.is_identity());
         self.qat_fits = None;
         self.qat_weight_fits = None;
+        self.ema = None;
     }
 
     /// The storage quantisation-aware fine-tuning imitates, if active.
@@ -433,6 +502,7 @@ impl Trainer {
         if k < self.pyr.levels.len() && self.pyr.levels.len() > 1 {
             self.pyr.levels.remove(k);
             self.tex_adam.remove(k);
+            self.ema = None;
         }
     }
 
@@ -445,6 +515,7 @@ impl Trainer {
             }
         }
         self.zero_frozen();
+        self.ema = None;
     }
 
     /// Channels held at zero.
@@ -480,6 +551,7 @@ impl Trainer {
                 }
             }
         }
+        self.ema = None;
         zeroed
     }
 
@@ -743,6 +815,7 @@ impl Trainer {
         self.step += 1;
         self.loss_sum += loss;
         self.loss_n += 1;
+        self.ema_after_step();
         Ok(loss)
     }
 
@@ -1036,6 +1109,7 @@ impl Trainer {
         }
         self.rng = ChaCha8Rng::from_seed(c.header.rng_seed);
         self.rng.set_word_pos(c.header.rng_word_pos);
+        self.ema = None;
         self.step = c.header.step;
         self.loss_sum = c.header.loss_sum;
         self.loss_n = c.header.loss_n;

@@ -56,6 +56,8 @@ pub struct RunState {
     pub recoveries: Vec<Recovery>,
     /// Validation checks: (step, training seconds, validation PSNR).
     pub checks: Vec<(u64, f64, f64)>,
+    /// Validation checks of the moving average (`train::ema`): (step, validation PSNR).
+    pub ema_checks: Vec<(u64, f64)>,
 }
 
 impl Default for RunState {
@@ -68,6 +70,7 @@ impl Default for RunState {
             records: Vec::new(),
             recoveries: Vec::new(),
             checks: Vec::new(),
+            ema_checks: Vec::new(),
         }
     }
 }
@@ -212,6 +215,7 @@ pub fn run(
             } else if v >= best.1 {
                 best = (trainer.checkpoint(state), v);
             }
+            check_ema(trainer, state, val, &mut best)?;
         }
         if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
             state.next_eval += trainer.cfg.eval_every;
@@ -238,7 +242,13 @@ pub fn run(
         let v = if state.checks.last().is_some_and(|c| c.0 == trainer.step) {
             state.last_val
         } else {
-            check(trainer, state, val)?
+            let v = check(trainer, state, val)?;
+            // The average competes with the final state, not with an older best.
+            if v >= best.1 && trainer.ema_ready() {
+                best = (trainer.checkpoint(state), v);
+            }
+            check_ema(trainer, state, val, &mut best)?;
+            v
         };
         let worse = v.is_nan() || v < best.1;
         if best.1.is_finite() && worse {
@@ -299,6 +309,30 @@ fn check(trainer: &Trainer, state: &mut RunState, val: &[View]) -> Result<f64, T
     state.last_val = v;
     state.checks.push((trainer.step, state.train_secs, v));
     Ok(v)
+}
+
+/// Renders the validation views with the moving average in place of the state (when it
+/// has run long enough); keeps it as the best state when it beats every state so far.
+fn check_ema(
+    trainer: &mut Trainer,
+    state: &mut RunState,
+    val: &[View],
+    best: &mut (Checkpoint, f64),
+) -> Result<(), TrainError> {
+    if !trainer.swap_ema() {
+        return Ok(());
+    }
+    let t = Instant::now();
+    let v = mean_psnr(trainer, val);
+    if let Ok(v) = v {
+        if v.is_finite() && v > best.1 {
+            *best = (trainer.checkpoint(state), v);
+        }
+        state.ema_checks.push((trainer.step, v));
+    }
+    trainer.swap_ema();
+    state.train_secs += t.elapsed().as_secs_f64();
+    v.map(|_| ())
 }
 
 fn record(trainer: &mut Trainer, state: &RunState, test: &[View]) -> Result<Record, TrainError> {
