@@ -408,10 +408,10 @@ impl Trainer {
     /// Exchanges the state with its moving average, when one has run for at least its time
     /// constant; calling it again exchanges them back. Returns whether it exchanged.
     pub fn swap_ema(&mut self) -> bool {
+        let ok = self.ema_ready();
         let Some(mut avg) = self.ema.take() else {
             return false;
         };
-        let ok = avg.fits(&self.param_slices()) && avg.warm(self.cfg.ema);
         if ok {
             let mut t = avg.tensors.iter_mut();
             for l in &mut self.pyr.levels {
