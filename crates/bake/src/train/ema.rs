@@ -88,8 +88,8 @@ mod tests {
         assert!(e.fits(&[&one]));
         assert!(!e.fits(&[&one, &one]));
         assert!(!e.fits(&[&one[..2]]));
-        // Horizon: 1 / (1 - decay) steps; warm after that many steps of updates.
-        assert!((Ema::horizon(0.99) - 100.0).abs() < 1e-6);
+        // Horizon: 1 / (1 - decay) steps (0.99 is not exact in f32); warm after that many steps.
+        assert!((Ema::horizon(0.99) - 100.0).abs() < 1e-3);
         assert!(!Ema::start(&[&a]).warm(0.99));
     }
 }
