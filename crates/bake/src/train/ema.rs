@@ -2,15 +2,17 @@
 //! offered to the validation checks as a second candidate for the kept state.
 //!
 //! Training with one view per step is noisy: the state a check sees is one draw around the
-//! point the optimiser hovers over. On captures where validation peaks early (while the
-//! learning rate is still high) the average of recent states is a better candidate than any
-//! one of them. The average never feeds back into training; a check keeps it only when it
-//! scores higher on validation than the current state and every earlier one.
+//! point the optimiser hovers over, and the average of recent states may be a better
+//! candidate where validation peaks while the learning rate is still high. The average never
+//! feeds back into training; a check keeps it only when it scores higher on validation than
+//! the current state and every earlier one. Measured at 300 s on the development set it did
+//! not gain held out (docs/benchmarks.md), so `--ema` is off by default.
 
 use rayon::prelude::*;
 
-/// Steps between updates of the average (each update decays by `decay^EVERY`): the update
-/// streams the whole texture, so doing it every step would cost several percent of a step.
+/// Steps between updates of the average (each update decays by `decay^EVERY`): an update
+/// streams the whole texture, tens of megabytes on the balanced size, so it is not done
+/// every step.
 pub const EVERY: u64 = 4;
 
 /// Elements per parallel chunk of an update.
