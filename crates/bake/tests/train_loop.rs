@@ -247,3 +247,40 @@ fn a_decay_outside_zero_to_one_is_refused() {
         assert!(e.to_string().contains("moving-average decay"), "{e}");
     }
 }
+
+#[test]
+fn a_batch_of_one_view_twice_steps_exactly_as_that_view_alone() {
+    let (fit, _) = sample_views();
+    let one = &fit[..1];
+    let mut single = Trainer::new(cfg(1e-2, 10), one).unwrap();
+    let mut c = cfg(1e-2, 10);
+    c.batch = 2;
+    let mut batched = Trainer::new(c, one).unwrap();
+    for _ in 0..3 {
+        let (a, b) = (single.step(one).unwrap(), batched.step(one).unwrap());
+        assert_eq!(a, b, "the batch's loss is the mean of its crops'");
+    }
+    // Halving each crop's gradient is exact, so the two halves add up to the whole bit for
+    // bit, and the dense-gradient update equals the fused one: texture, weights and moments.
+    let (a, b) = (
+        single.checkpoint(&RunState::default()),
+        batched.checkpoint(&RunState::default()),
+    );
+    assert!(
+        a.arrays == b.arrays,
+        "a batch of two equal crops must take the same step"
+    );
+    // Over the whole sample, batches of three crops train.
+    let mut c = cfg(1e-2, 40);
+    c.batch = 3;
+    let mut t = Trainer::new(c, &fit).unwrap();
+    let losses: Vec<f64> = (0..40).map(|_| t.step(&fit).unwrap()).collect();
+    let (early, late) = (
+        losses[..10].iter().sum::<f64>(),
+        losses[30..].iter().sum::<f64>(),
+    );
+    assert!(
+        late < 0.8 * early,
+        "loss {early} over the first 10 steps, {late} over the last"
+    );
+}

@@ -35,7 +35,9 @@ use crate::export::ExportNet;
 use crate::kernels::adam::{Adam, AdamConfig, SparseAdam};
 use crate::kernels::loss::{colour_l1_loss_where, l1_loss, level_lambda};
 use crate::kernels::mlp::MlpTrain;
-use crate::kernels::sample::{sample_backward_adam, sample_forward_taps};
+use crate::kernels::sample::{
+    sample_backward, sample_backward_adam, sample_forward_taps, ViewTaps,
+};
 use crate::kernels::unet::UNetTrain;
 use config::{Arch, TrainConfig};
 use views::View;
@@ -183,6 +185,9 @@ pub struct Trainer {
     /// The moving average of the texture and the weights (see [`ema`]), restarted whenever
     /// the state changes other than by a step.
     ema: Option<ema::Ema>,
+    /// The texture gradients a batched step gathers (one per level, all zero between steps;
+    /// empty until the first batched step).
+    batch_grads: Vec<Vec<f32>>,
 }
 
 /// Wall seconds of the phases of [`Trainer::step`], summed over steps (what `dnr bench train`
@@ -371,6 +376,7 @@ impl Trainer {
             qat_fits: None,
             qat_weight_fits: None,
             ema: None,
+            batch_grads: Vec::new(),
         })
     }
 
@@ -649,10 +655,135 @@ impl Trainer {
     }
 
     fn step_in_pool(&mut self, views: &[View]) -> Result<f64, TrainError> {
+        let batch = self.cfg.batch.max(1) as usize;
+        if batch > 1 {
+            return self.batch_step(views, batch);
+        }
+        let v = self.sample_crop(views);
+        let (loss, dx, taps) = self.crop_gradient(&v, 1.0)?;
         let mut t = Instant::now();
         let mut ph = self.phase_seconds;
-        let v = self.sample_crop(views);
-        let v: &View = &v;
+
+        // Texture: scatter into the levels fused with lazy Adam on the touched texels only.
+        let decay = self.level_decay();
+        // The texture's and the network's updates are independent: side by side (the texel
+        // scatter waits on memory, the dense Adam streams it).
+        let (pyr, tex_adam, net) = (&mut self.pyr, &mut self.tex_adam, &mut self.net);
+        let (tex, ()) = rayon::join(
+            || sample_backward_adam(&taps, pyr, &dx.data, tex_adam, &decay),
+            || {
+                if let Some((weights, grads, adam)) = net.params_mut() {
+                    for ((wt, g), a) in weights
+                        .iter_mut()
+                        .zip(grads.iter_mut())
+                        .zip(adam.iter_mut())
+                    {
+                        a.step_zero_grad(wt, g);
+                    }
+                }
+            },
+        );
+        tex.map_err(|e| TrainError::Kernel(e.to_string()))?;
+        dx.recycle();
+        self.zero_frozen();
+        lap(&mut t, &mut ph.updates);
+        self.phase_seconds = ph;
+        self.step += 1;
+        self.loss_sum += loss;
+        self.loss_n += 1;
+        self.ema_after_step();
+        Ok(loss)
+    }
+
+    /// One step on `batch` crops of random views: their network gradients add up
+    /// (each crop's loss weighs `1 / batch`), their texture gradients gather in full-size
+    /// buffers, and one Adam step then updates the weights and every texel any crop touched.
+    fn batch_step(&mut self, views: &[View], batch: usize) -> Result<f64, TrainError> {
+        let scale = 1.0 / batch as f32;
+        let mut grads = std::mem::take(&mut self.batch_grads);
+        if grads.len() != self.pyr.levels.len()
+            || grads
+                .iter()
+                .zip(&self.pyr.levels)
+                .any(|(g, l)| g.len() != l.data.len())
+        {
+            grads = self
+                .pyr
+                .levels
+                .iter()
+                .map(|l| vec![0.0; l.data.len()])
+                .collect();
+        }
+        let mut touched: Vec<Vec<u32>> = vec![Vec::new(); grads.len()];
+        let mut loss = 0.0;
+        for _ in 0..batch {
+            let v = self.sample_crop(views);
+            let (l, dx, _taps) = self.crop_gradient(&v, scale)?;
+            let t = Instant::now();
+            loss += l / batch as f64;
+            let (fg, _) = self.feature_gbuf(&v);
+            let hit = sample_backward(&self.pyr, fg, &dx.data, &mut grads)
+                .map_err(|e| TrainError::Kernel(e.to_string()))?;
+            for (all, new) in touched.iter_mut().zip(hit) {
+                *all = merge_sorted(all, &new);
+            }
+            dx.recycle();
+            self.phase_seconds.updates += t.elapsed().as_secs_f64();
+        }
+        let t = Instant::now();
+        let decay = self.level_decay();
+        for (k, ((lvl, adam), g)) in self
+            .pyr
+            .levels
+            .iter_mut()
+            .zip(self.tex_adam.iter_mut())
+            .zip(grads.iter_mut())
+            .enumerate()
+        {
+            // Clears the touched rows of the gradient: the buffers are all zero again.
+            adam.step(&mut lvl.data, g, &touched[k], decay[k]);
+        }
+        self.batch_grads = grads;
+        if let Some((weights, grads, adam)) = self.net.params_mut() {
+            for ((wt, g), a) in weights
+                .iter_mut()
+                .zip(grads.iter_mut())
+                .zip(adam.iter_mut())
+            {
+                a.step_zero_grad(wt, g);
+            }
+        }
+        self.zero_frozen();
+        self.phase_seconds.updates += t.elapsed().as_secs_f64();
+        self.step += 1;
+        self.loss_sum += loss;
+        self.loss_n += 1;
+        self.ema_after_step();
+        Ok(loss)
+    }
+
+    /// Per-level L2 factor of the texel updates: the paper's growing regularisation of the
+    /// finer levels, per texel.
+    fn level_decay(&self) -> Vec<f32> {
+        let k_total = self.pyr.levels.len();
+        self.pyr
+            .levels
+            .iter()
+            .enumerate()
+            .map(|(k, lvl)| 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32)
+            .collect()
+    }
+
+    /// Forward and backward of one crop, with its loss weighed by `scale`: the photometric
+    /// L1, the gradient with respect to the feature G-buffer's samples (after SH's backward;
+    /// the network's gradients are added to its own buffers), and the texture taps.
+    fn crop_gradient(
+        &mut self,
+        v: &View,
+        scale: f32,
+    ) -> Result<(f64, Tensor, ViewTaps), TrainError> {
+        let mut t = Instant::now();
+        let mut ph = self.phase_seconds;
         let (h, w) = (v.height(), v.width());
         let n = h * w;
         // The features (what `features_of` computes, bit for bit), keeping the taps for the
@@ -694,7 +825,7 @@ impl Trainer {
                     .valid
                     .as_ref()
                     .map(|m| m.iter().map(|&b| if b { 1.0 } else { 0.0 }).collect());
-                let loss = l1_loss(&comp, &target, weight.as_deref(), 1.0, &mut dcomp);
+                let loss = l1_loss(&comp, &target, weight.as_deref(), scale, &mut dcomp);
                 lap(&mut t, &mut ph.forward);
                 // colour = clamp(x): gradient only where x is inside [0, 1].
                 let mut dx = Tensor::zeros(self.pyr.channels, h, w);
@@ -720,6 +851,7 @@ impl Trainer {
                     let mut dy = Tensor::zeros(self.out_ch, h, w);
                     let loss =
                         photometric_loss(&y.data, v, self.out_ch, self.cfg.loss, &mut dy.data);
+                    scale_in_place(&mut dy.data, scale);
                     y.recycle();
                     lap(&mut t, &mut ph.forward);
                     let dx = net.backward(&acts, &dy);
@@ -744,6 +876,7 @@ impl Trainer {
                     let mut dy = Tensor::zeros(self.out_ch, h, w);
                     let loss =
                         photometric_loss(&y.data, v, self.out_ch, self.cfg.loss, &mut dy.data);
+                    scale_in_place(&mut dy.data, scale);
                     y.recycle();
                     lap(&mut t, &mut ph.forward);
                     let dx = net.backward_frame(&acts, &dy);
@@ -764,7 +897,7 @@ impl Trainer {
                 &x,
                 &v.target,
                 |i| v.gbuf.coverage[i] > 0.0 && v.alpha[i] > 0.5 && v.is_valid(i),
-                self.cfg.mean_colour_weight,
+                self.cfg.mean_colour_weight * scale,
                 &mut dx,
             );
         }
@@ -780,43 +913,8 @@ impl Trainer {
         // SH modulation is linear and diagonal: its backward is itself.
         self.sh_modulate(fg, &mut dx.data)?;
         lap(&mut t, &mut ph.feature_grads);
-
-        // Texture: scatter into the levels fused with lazy Adam on the touched texels only.
-        let k_total = self.pyr.levels.len();
-        let decay: Vec<f32> = self
-            .pyr
-            .levels
-            .iter()
-            .enumerate()
-            .map(|(k, lvl)| 2.0 * level_lambda(self.cfg.reg, k, k_total) / lvl.data.len() as f32)
-            .collect();
-        // The texture's and the network's updates are independent: side by side (the texel
-        // scatter waits on memory, the dense Adam streams it).
-        let (pyr, tex_adam, net) = (&mut self.pyr, &mut self.tex_adam, &mut self.net);
-        let (tex, ()) = rayon::join(
-            || sample_backward_adam(&taps, pyr, &dx.data, tex_adam, &decay),
-            || {
-                if let Some((weights, grads, adam)) = net.params_mut() {
-                    for ((wt, g), a) in weights
-                        .iter_mut()
-                        .zip(grads.iter_mut())
-                        .zip(adam.iter_mut())
-                    {
-                        a.step_zero_grad(wt, g);
-                    }
-                }
-            },
-        );
-        tex.map_err(|e| TrainError::Kernel(e.to_string()))?;
-        dx.recycle();
-        self.zero_frozen();
-        lap(&mut t, &mut ph.updates);
         self.phase_seconds = ph;
-        self.step += 1;
-        self.loss_sum += loss;
-        self.loss_n += 1;
-        self.ema_after_step();
-        Ok(loss)
+        Ok((loss, dx, taps))
     }
 
     /// Sets the base texture and network learning rates (the configuration's; the
@@ -1136,6 +1234,28 @@ enum EvalNet {
     None,
     Mlp(Mlp),
     Unet(UNet),
+}
+
+/// Multiplies every value by `s` (a crop's share of a batched step's loss).
+fn scale_in_place(x: &mut [f32], s: f32) {
+    if s != 1.0 {
+        x.iter_mut().for_each(|v| *v *= s);
+    }
+}
+
+/// The ascending union of two ascending lists without duplicates.
+fn merge_sorted(a: &[u32], b: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let (x, y) = (a[i], b[j]);
+        out.push(x.min(y));
+        i += usize::from(x <= y);
+        j += usize::from(y <= x);
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    out
 }
 
 fn uvs_in_unit_square(views: &[View]) -> bool {
