@@ -133,6 +133,19 @@ enum Net {
 }
 
 impl Net {
+    /// One Adam step of every weight tensor on its gradient, which it then clears.
+    fn adam_step(&mut self) {
+        if let Some((weights, grads, adam)) = self.params_mut() {
+            for ((wt, g), a) in weights
+                .iter_mut()
+                .zip(grads.iter_mut())
+                .zip(adam.iter_mut())
+            {
+                a.step_zero_grad(wt, g);
+            }
+        }
+    }
+
     /// The network's tensors, their gradients and their optimisers (none for `None`), in the
     /// architecture's `tensor_specs` order (also the checkpoint's `net.{i}` order).
     #[allow(clippy::type_complexity)]
@@ -671,28 +684,23 @@ impl Trainer {
         let (pyr, tex_adam, net) = (&mut self.pyr, &mut self.tex_adam, &mut self.net);
         let (tex, ()) = rayon::join(
             || sample_backward_adam(&taps, pyr, &dx.data, tex_adam, &decay),
-            || {
-                if let Some((weights, grads, adam)) = net.params_mut() {
-                    for ((wt, g), a) in weights
-                        .iter_mut()
-                        .zip(grads.iter_mut())
-                        .zip(adam.iter_mut())
-                    {
-                        a.step_zero_grad(wt, g);
-                    }
-                }
-            },
+            || net.adam_step(),
         );
         tex.map_err(|e| TrainError::Kernel(e.to_string()))?;
         dx.recycle();
         self.zero_frozen();
         lap(&mut t, &mut ph.updates);
         self.phase_seconds = ph;
+        Ok(self.count_step(loss))
+    }
+
+    /// Counts a finished step with its loss and folds the state into the moving average.
+    fn count_step(&mut self, loss: f64) -> f64 {
         self.step += 1;
         self.loss_sum += loss;
         self.loss_n += 1;
         self.ema_after_step();
-        Ok(loss)
+        loss
     }
 
     /// One step on `batch` crops of random views: their network gradients add up
@@ -744,22 +752,10 @@ impl Trainer {
             adam.step(&mut lvl.data, g, &touched[k], decay[k]);
         }
         self.batch_grads = grads;
-        if let Some((weights, grads, adam)) = self.net.params_mut() {
-            for ((wt, g), a) in weights
-                .iter_mut()
-                .zip(grads.iter_mut())
-                .zip(adam.iter_mut())
-            {
-                a.step_zero_grad(wt, g);
-            }
-        }
+        self.net.adam_step();
         self.zero_frozen();
         self.phase_seconds.updates += t.elapsed().as_secs_f64();
-        self.step += 1;
-        self.loss_sum += loss;
-        self.loss_n += 1;
-        self.ema_after_step();
-        Ok(loss)
+        Ok(self.count_step(loss))
     }
 
     /// Per-level L2 factor of the texel updates: the paper's growing regularisation of the
