@@ -157,8 +157,8 @@ struct Args {
     #[arg(long, value_name = "DECAY")]
     ema: Option<f32>,
     /// Crops of random views whose gradients each step averages (1 to 16; default 1, one
-    /// crop per step as in the paper). Larger batches take smoother but fewer steps in the
-    /// same time on a CPU.
+    /// crop per step as in the paper). On a CPU a batch of 2 costs about 2.2 steps and lost
+    /// 0.14 to 0.24 dB held out at 300 s on the development set with the size held fixed.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=16))]
     batch: Option<u32>,
     /// Random seed.
