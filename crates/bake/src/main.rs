@@ -161,6 +161,11 @@ struct Args {
     /// 0.14 to 0.24 dB held out at 300 s on the development set with the size held fixed.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=16))]
     batch: Option<u32>,
+    /// Decoupled weight decay (AdamW) of the finest texture level, falling linearly to none
+    /// at the coarsest (default 0, none): each update shrinks a texel by LR * DECAY of its
+    /// value, so detail the views disagree on fades and the coarser levels carry the rest.
+    #[arg(long, value_name = "DECAY")]
+    tex_decay: Option<f32>,
     /// Random seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -292,6 +297,9 @@ fn config(a: &Args) -> TrainConfig {
     }
     if let Some(v) = a.lr_floor {
         c.schedule.floor = v;
+    }
+    if let Some(v) = a.tex_decay {
+        c.tex_decay = v;
     }
     if let Some(v) = a.reg {
         c.reg = v;

@@ -810,6 +810,46 @@ fn adam_matches_reference_update() {
 }
 
 #[test]
+fn adam_weight_decay_is_decoupled() {
+    // AdamW (PyTorch's): p <- p * (1 - lr * wd), then the Adam step; the sparse variant takes
+    // the same step per touched row.
+    let cfg = AdamConfig {
+        lr: 0.01,
+        weight_decay: 3.0,
+        ..AdamConfig::default()
+    };
+    let mut r = rng(42);
+    let mut p = randv(&mut r, 12);
+    let mut ps = p.clone();
+    let mut want: Vec<f64> = f64s(&p);
+    let (mut m, mut v) = (vec![0.0f64; 12], vec![0.0f64; 12]);
+    let mut opt = Adam::new(12, cfg);
+    let mut sparse = SparseAdam::new(4, 3, cfg);
+    for t in 1..=4 {
+        let g = randv(&mut r, 12);
+        opt.step(&mut p, &g);
+        let mut gs = g.clone();
+        sparse.step(&mut ps, &mut gs, &[0, 1, 2, 3], 0.0);
+        for i in 0..12 {
+            m[i] = 0.9 * m[i] + 0.1 * g[i] as f64;
+            v[i] = 0.999 * v[i] + 0.001 * (g[i] as f64).powi(2);
+            let mh = m[i] / (1.0 - 0.9f64.powi(t));
+            let vh = v[i] / (1.0 - 0.999f64.powi(t));
+            want[i] = want[i] * (1.0 - 0.01 * 3.0) - 0.01 * mh / (vh.sqrt() + 1e-8);
+        }
+    }
+    for ((a, s), b) in p.iter().zip(&ps).zip(&want) {
+        assert!((*a as f64 - b).abs() < 1e-6, "adamw: {a} vs {b}");
+        assert!((*s as f64 - b).abs() < 1e-6, "sparse adamw: {s} vs {b}");
+    }
+    // With a zero gradient a parameter only shrinks, by the factor each step.
+    let mut q = vec![1.0f32; 3];
+    let mut o = Adam::new(3, cfg);
+    o.step(&mut q, &[0.0; 3]);
+    assert!((q[0] - 0.97).abs() < 1e-7, "{}", q[0]);
+}
+
+#[test]
 fn sparse_adam_is_dense_adam_per_row() {
     // A row touched at steps 2 and 4 must end exactly where dense Adam ends after the same two
     // gradients; untouched rows must not move.

@@ -284,3 +284,34 @@ fn a_batch_of_one_view_twice_steps_exactly_as_that_view_alone() {
         "loss {early} over the first 10 steps, {late} over the last"
     );
 }
+
+#[test]
+fn texture_weight_decay_shrinks_the_finest_level_and_bad_values_are_refused() {
+    let (fit, _) = sample_views();
+    let sq = |t: &Trainer, k: usize| -> f64 {
+        t.pyr.levels[k]
+            .data
+            .iter()
+            .map(|&v| f64::from(v).powi(2))
+            .sum()
+    };
+    let mut plain = Trainer::new(cfg(1e-2, 20), &fit).unwrap();
+    let mut c = cfg(1e-2, 20);
+    c.tex_decay = 20.0;
+    let mut decayed = Trainer::new(c, &fit).unwrap();
+    let finest0 = sq(&plain, 0);
+    assert_eq!(finest0, sq(&decayed, 0), "same start");
+    for _ in 0..20 {
+        plain.step(&fit).unwrap();
+        decayed.step(&fit).unwrap();
+    }
+    // Each update shrinks a touched finest texel by 1 - 0.01 * 20 = 0.8 before Adam's step.
+    let (p, d) = (sq(&plain, 0), sq(&decayed, 0));
+    assert!(d < 0.5 * p, "finest level: {d} with decay, {p} without");
+    for bad in [-1.0, f32::NAN, 50.0] {
+        let mut c = cfg(1e-2, 10);
+        c.tex_decay = bad;
+        let e = Trainer::new(c, &fit).err().expect("refused");
+        assert!(e.to_string().contains("texture weight decay"), "{e}");
+    }
+}

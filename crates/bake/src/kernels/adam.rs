@@ -16,6 +16,9 @@ pub struct AdamConfig {
     pub beta2: f32,
     /// Added to the denominator.
     pub eps: f32,
+    /// Decoupled weight decay (AdamW): each update first scales the parameter by
+    /// `1 - lr * weight_decay`. 0 (the default) leaves Adam exactly as it was.
+    pub weight_decay: f32,
 }
 
 impl Default for AdamConfig {
@@ -26,6 +29,7 @@ impl Default for AdamConfig {
             beta1: 0.9,
             beta2: 0.999,
             eps: 1e-8,
+            weight_decay: 0.0,
         }
     }
 }
@@ -37,13 +41,16 @@ const CONSTS_SLOTS: usize = 16;
 const CHUNK: usize = 1 << 14;
 
 /// The per-step constants of an Adam update, with `step_size = lr / (1 - beta1^t)` and
-/// `bc2 = sqrt(1 - beta2^t)`: `step = step_size * bc2` and `eps_bc2 = eps * bc2`.
+/// `bc2 = sqrt(1 - beta2^t)`: `step = step_size * bc2` and `eps_bc2 = eps * bc2`; `keep =
+/// 1 - lr * weight_decay` scales the parameter first (decoupled decay, not bias-corrected,
+/// as PyTorch's AdamW).
 #[derive(Clone, Copy)]
 struct StepConsts {
     beta1: f32,
     beta2: f32,
     step: f32,
     eps_bc2: f32,
+    keep: f32,
 }
 
 impl StepConsts {
@@ -60,6 +67,7 @@ impl StepConsts {
             beta2: cfg.beta2,
             step: step_size * bc2,
             eps_bc2: cfg.eps * bc2,
+            keep: 1.0 - cfg.lr * cfg.weight_decay,
         }
     }
 
@@ -72,7 +80,8 @@ impl StepConsts {
         *m = self.beta1 * *m + (1.0 - self.beta1) * g;
         *v = self.beta2 * *v + (1.0 - self.beta2) * g * g;
         let denom = v.sqrt() + self.eps_bc2;
-        *p -= self.step * *m / denom;
+        // `keep` is exactly 1 without decay, so the product changes no bit then.
+        *p = *p * self.keep - self.step * *m / denom;
     }
 }
 

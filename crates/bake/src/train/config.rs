@@ -136,6 +136,12 @@ pub struct TrainConfig {
     /// Crops (of random views) whose gradients one step averages. 1 (the paper's) takes a
     /// step per crop.
     pub batch: u32,
+    /// Decoupled weight decay (AdamW) of the finest texture level; level k of K (0 =
+    /// finest) gets `tex_decay * (K-1-k) / (K-1)`, so the coarsest never decays. Unlike
+    /// `reg` (a penalty on the mean square, whose gradient Adam normalises away), it pulls
+    /// each texel toward zero at `lr * tex_decay` of its value per update: texels whose
+    /// gradients disagree across views shrink, consistent ones hold (0 = none).
+    pub tex_decay: f32,
 }
 
 impl TrainConfig {
@@ -172,6 +178,7 @@ impl TrainConfig {
             // set, within run-to-run spread (docs/benchmarks.md).
             ema: 0.0,
             batch: 1,
+            tex_decay: 0.0,
         };
         match preset {
             // The quick preset keeps the cheaper step (subsamples about double it).

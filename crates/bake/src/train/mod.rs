@@ -291,6 +291,16 @@ impl Trainer {
                 cfg.sh_degree
             )));
         }
+        // `lr * decay` must stay below 1, or a texel would flip sign each update.
+        if !(cfg.tex_decay.is_finite()
+            && cfg.tex_decay >= 0.0
+            && cfg.tex_decay * cfg.lr_tex.max(0.0) < 0.5)
+        {
+            return Err(TrainError::Config(format!(
+                "texture weight decay {}: must be at least 0 (off) and below 0.5 / the texture learning rate ({})",
+                cfg.tex_decay, cfg.lr_tex
+            )));
+        }
         if !(0.0..1.0).contains(&cfg.ema) {
             return Err(TrainError::Config(format!(
                 "moving-average decay {}: must be at least 0 (off) and below 1",
@@ -372,7 +382,7 @@ impl Trainer {
                 Net::Mlp { net, adam }
             }
         };
-        Ok(Trainer {
+        let mut tr = Trainer {
             rng: ChaCha8Rng::seed_from_u64(cfg.seed),
             cfg,
             pyr,
@@ -390,7 +400,9 @@ impl Trainer {
             qat_weight_fits: None,
             ema: None,
             batch_grads: Vec::new(),
-        })
+        };
+        tr.apply_tex_decay();
+        Ok(tr)
     }
 
     /// The texture levels' and the network's tensors, in the moving average's order.
@@ -522,6 +534,20 @@ impl Trainer {
             self.pyr.levels.remove(k);
             self.tex_adam.remove(k);
             self.ema = None;
+            self.apply_tex_decay();
+        }
+    }
+
+    /// Sets each level's decoupled weight decay from `tex_decay` by its index (see
+    /// [`TrainConfig::tex_decay`]).
+    fn apply_tex_decay(&mut self) {
+        let k_total = self.tex_adam.len();
+        for (k, a) in self.tex_adam.iter_mut().enumerate() {
+            a.cfg.weight_decay = if k_total > 1 {
+                self.cfg.tex_decay * (k_total - 1 - k) as f32 / (k_total - 1) as f32
+            } else {
+                0.0
+            };
         }
     }
 
@@ -940,6 +966,7 @@ impl Trainer {
             self.cfg.lr_tex * self.lr_scale,
         );
         self.tex_adam.iter_mut().for_each(|a| a.cfg.lr = lr_tex);
+        self.apply_tex_decay();
         if let Some((_, _, adam)) = self.net.params_mut() {
             adam.iter_mut().for_each(|a| a.cfg.lr = lr_net);
         }
