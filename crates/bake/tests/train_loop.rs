@@ -295,8 +295,9 @@ fn texture_weight_decay_shrinks_the_finest_level_and_bad_values_are_refused() {
             .map(|&v| f64::from(v).powi(2))
             .sum()
     };
-    let mut plain = Trainer::new(cfg(1e-2, 20), &fit).unwrap();
     let mut c = cfg(1e-2, 20);
+    c.tex_decay = 0.0;
+    let mut plain = Trainer::new(c.clone(), &fit).unwrap();
     c.tex_decay = 20.0;
     let mut decayed = Trainer::new(c, &fit).unwrap();
     let finest0 = sq(&plain, 0);
