@@ -291,7 +291,7 @@ impl Trainer {
                 cfg.sh_degree
             )));
         }
-        // `lr * decay` must stay below 1, or a texel would flip sign each update.
+        // `lr * decay` at 1 or above would flip a texel's sign each update; a half keeps it shrinking.
         if !(cfg.tex_decay.is_finite()
             && cfg.tex_decay >= 0.0
             && cfg.tex_decay * cfg.lr_tex.max(0.0) < 0.5)
