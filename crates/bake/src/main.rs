@@ -169,6 +169,10 @@ struct Args {
     /// run-to-run spread of 2.
     #[arg(long, value_name = "DECAY")]
     tex_decay: Option<f32>,
+    /// Decoupled weight decay (AdamW) of the network's weights (default 0, none): each
+    /// update shrinks every weight by LR * DECAY of its value.
+    #[arg(long, value_name = "DECAY")]
+    net_decay: Option<f32>,
     /// Random seed.
     #[arg(long)]
     seed: Option<u64>,
@@ -303,6 +307,9 @@ fn config(a: &Args) -> TrainConfig {
     }
     if let Some(v) = a.tex_decay {
         c.tex_decay = v;
+    }
+    if let Some(v) = a.net_decay {
+        c.net_decay = v;
     }
     if let Some(v) = a.reg {
         c.reg = v;

@@ -316,3 +316,37 @@ fn texture_weight_decay_shrinks_the_finest_level_and_bad_values_are_refused() {
         assert!(e.to_string().contains("texture weight decay"), "{e}");
     }
 }
+
+#[test]
+fn network_weight_decay_shrinks_the_weights_and_bad_values_are_refused() {
+    let (fit, _) = sample_views();
+    let sq = |t: &Trainer| -> f64 {
+        match t.export_net() {
+            dnr_bake::export::ExportNet::Unet { tensors, .. } => tensors
+                .values()
+                .flat_map(|(_, v)| v.iter())
+                .map(|&v| f64::from(v).powi(2))
+                .sum(),
+            _ => panic!("the default network is a U-Net"),
+        }
+    };
+    let mut c = cfg(1e-2, 20);
+    c.net_decay = 0.0;
+    let mut plain = Trainer::new(c.clone(), &fit).unwrap();
+    c.net_decay = 20.0;
+    let mut decayed = Trainer::new(c, &fit).unwrap();
+    assert_eq!(sq(&plain), sq(&decayed), "same start");
+    for _ in 0..20 {
+        plain.step(&fit).unwrap();
+        decayed.step(&fit).unwrap();
+    }
+    // Each update scales every weight by 1 - 0.01 * 20 = 0.8 before Adam's step.
+    let (p, d) = (sq(&plain), sq(&decayed));
+    assert!(d < 0.5 * p, "weights: {d} with decay, {p} without");
+    for bad in [-1.0, f32::NAN, 50.0] {
+        let mut c = cfg(1e-2, 10);
+        c.net_decay = bad;
+        let e = Trainer::new(c, &fit).err().expect("refused");
+        assert!(e.to_string().contains("network weight decay"), "{e}");
+    }
+}

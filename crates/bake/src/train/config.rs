@@ -142,6 +142,9 @@ pub struct TrainConfig {
     /// each texel toward zero at `lr * tex_decay` of its value per update: texels whose
     /// gradients disagree across views shrink, consistent ones hold (0 = none).
     pub tex_decay: f32,
+    /// Decoupled weight decay (AdamW) of the network's weights and biases: each update
+    /// scales them by `1 - lr * net_decay` before the Adam step (0 = none).
+    pub net_decay: f32,
 }
 
 impl TrainConfig {
@@ -181,6 +184,7 @@ impl TrainConfig {
             // At 300 s it gained on every capture of the development set, most where
             // validation shows over-fitting (docs/benchmarks.md, "Texture weight decay").
             tex_decay: 4.0,
+            net_decay: 0.0,
         };
         match preset {
             // The quick preset keeps the cheaper step (subsamples about double it).

@@ -301,6 +301,15 @@ impl Trainer {
                 cfg.tex_decay, cfg.lr_tex
             )));
         }
+        if !(cfg.net_decay.is_finite()
+            && cfg.net_decay >= 0.0
+            && cfg.net_decay * cfg.lr_net.max(0.0) < 0.5)
+        {
+            return Err(TrainError::Config(format!(
+                "network weight decay {}: must be at least 0 (off) and below 0.5 / the network learning rate ({})",
+                cfg.net_decay, cfg.lr_net
+            )));
+        }
         if !(0.0..1.0).contains(&cfg.ema) {
             return Err(TrainError::Config(format!(
                 "moving-average decay {}: must be at least 0 (off) and below 1",
@@ -364,6 +373,7 @@ impl Trainer {
             .collect();
         let ncfg = AdamConfig {
             lr: cfg.lr_net,
+            weight_decay: cfg.net_decay,
             ..AdamConfig::default()
         };
         let adams = |ws: &[Vec<f32>]| ws.iter().map(|w| Adam::new(w.len(), ncfg)).collect();
