@@ -309,12 +309,7 @@ fn texture_weight_decay_shrinks_the_finest_level_and_bad_values_are_refused() {
     // Each update shrinks a touched finest texel by 1 - 0.01 * 20 = 0.8 before Adam's step.
     let (p, d) = (sq(&plain, 0), sq(&decayed, 0));
     assert!(d < 0.5 * p, "finest level: {d} with decay, {p} without");
-    for bad in [-1.0, f32::NAN, 50.0] {
-        let mut c = cfg(1e-2, 10);
-        c.tex_decay = bad;
-        let e = Trainer::new(c, &fit).err().expect("refused");
-        assert!(e.to_string().contains("texture weight decay"), "{e}");
-    }
+    refuses_bad_decays(&fit, "texture weight decay", |c, v| c.tex_decay = v);
 }
 
 #[test]
@@ -343,10 +338,15 @@ fn network_weight_decay_shrinks_the_weights_and_bad_values_are_refused() {
     // Each update scales every weight by 1 - 0.01 * 20 = 0.8 before Adam's step.
     let (p, d) = (sq(&plain), sq(&decayed));
     assert!(d < 0.5 * p, "weights: {d} with decay, {p} without");
+    refuses_bad_decays(&fit, "network weight decay", |c, v| c.net_decay = v);
+}
+
+/// Negative, non-finite and too-large decays are refused with an error naming them.
+fn refuses_bad_decays(fit: &[View], what: &str, set: impl Fn(&mut TrainConfig, f32)) {
     for bad in [-1.0, f32::NAN, 50.0] {
         let mut c = cfg(1e-2, 10);
-        c.net_decay = bad;
-        let e = Trainer::new(c, &fit).err().expect("refused");
-        assert!(e.to_string().contains("network weight decay"), "{e}");
+        set(&mut c, bad);
+        let e = Trainer::new(c, fit).err().expect("refused");
+        assert!(e.to_string().contains(what), "{e}");
     }
 }

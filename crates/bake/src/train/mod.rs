@@ -167,6 +167,18 @@ impl Net {
     }
 }
 
+/// Refuses a decoupled weight decay (of `what`: "texture" or "network") that is negative, not
+/// finite, or so large that `lr * decay` reaches a half: at 1 or above it would flip a
+/// parameter's sign each update, below a half it keeps shrinking it.
+fn check_decay(what: &str, decay: f32, lr: f32) -> Result<(), TrainError> {
+    if decay.is_finite() && decay >= 0.0 && decay * lr.max(0.0) < 0.5 {
+        return Ok(());
+    }
+    Err(TrainError::Config(format!(
+        "{what} weight decay {decay}: must be at least 0 (off) and below 0.5 / the {what} learning rate ({lr})"
+    )))
+}
+
 /// Training state: texture, network, optimiser moments, random stream.
 pub struct Trainer {
     /// Resolved configuration.
@@ -291,25 +303,8 @@ impl Trainer {
                 cfg.sh_degree
             )));
         }
-        // `lr * decay` at 1 or above would flip a texel's sign each update; a half keeps it shrinking.
-        if !(cfg.tex_decay.is_finite()
-            && cfg.tex_decay >= 0.0
-            && cfg.tex_decay * cfg.lr_tex.max(0.0) < 0.5)
-        {
-            return Err(TrainError::Config(format!(
-                "texture weight decay {}: must be at least 0 (off) and below 0.5 / the texture learning rate ({})",
-                cfg.tex_decay, cfg.lr_tex
-            )));
-        }
-        if !(cfg.net_decay.is_finite()
-            && cfg.net_decay >= 0.0
-            && cfg.net_decay * cfg.lr_net.max(0.0) < 0.5)
-        {
-            return Err(TrainError::Config(format!(
-                "network weight decay {}: must be at least 0 (off) and below 0.5 / the network learning rate ({})",
-                cfg.net_decay, cfg.lr_net
-            )));
-        }
+        check_decay("texture", cfg.tex_decay, cfg.lr_tex)?;
+        check_decay("network", cfg.net_decay, cfg.lr_net)?;
         if !(0.0..1.0).contains(&cfg.ema) {
             return Err(TrainError::Config(format!(
                 "moving-average decay {}: must be at least 0 (off) and below 1",
