@@ -361,6 +361,14 @@ fn auto_drops_sh_for_a_diffuse_capture_and_keeps_it_for_highlights() {
         assert!(decisions
             .iter()
             .all(|d| d["why"].as_str().is_some_and(|w| !w.is_empty())));
+        // How often validation checked the state, within its bounds.
+        use dnr_bake::train::run::{MIN_VAL_CHECKS, VAL_CHECKS};
+        let checks = decisions
+            .iter()
+            .find(|d| d["what"] == "validation checks")
+            .and_then(|d| d["choice"].as_str()?.split(' ').next()?.parse::<u32>().ok())
+            .unwrap_or_else(|| panic!("no validation-checks decision: {decisions:?}"));
+        assert!((MIN_VAL_CHECKS..=VAL_CHECKS).contains(&checks), "{checks}");
         // Pruning never grows the asset beyond compression noise (fine-tuning changes the
         // values, so the same layout can compress a little differently), and the error is
         // a real number.

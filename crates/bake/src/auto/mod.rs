@@ -262,6 +262,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         }
     }
     decisions.push(resolution_decision(&level_checks, &tr));
+    decisions.push(checks_decision(&state, tr.cfg.time_budget));
     phases.train += train_phase(&mut tr, &mut state, PRUNE_AT, &loaded, &progress)?;
     let trained_psnr = train::run::mean_psnr(&tr, loaded.val())?;
     let net = tr.export_net();
@@ -581,6 +582,23 @@ fn train_to_end(
     tr.set_qat(qat.clone());
     let after = train_phase(tr, state, 1.0, loaded, progress)?;
     Ok((before + after, choice))
+}
+
+/// The report line of how often validation checks the state ([`train::run::val_checks`]).
+fn checks_decision(state: &RunState, budget: f64) -> Decision {
+    let n = state.val_checks;
+    let secs = state.val_check_secs;
+    Decision::plain(
+        "validation checks",
+        format!("{n} over the budget"),
+        format!(
+            "one render of the validation views took {secs:.2} s; {n} checks take {:.1}% of the {budget:.0} s budget (at most {} checks, and fewer when they would take more than {:.0}% of it, never fewer than {})",
+            100.0 * f64::from(n) * secs / budget.max(f64::MIN_POSITIVE),
+            train::run::VAL_CHECKS,
+            100.0 * train::run::VAL_SHARE,
+            train::run::MIN_VAL_CHECKS
+        ),
+    )
 }
 
 /// The report line of the texture-resolution trials.

@@ -58,6 +58,11 @@ pub struct RunState {
     pub checks: Vec<(u64, f64, f64)>,
     /// Validation checks of the moving average (`train::ema`): (step, validation PSNR).
     pub ema_checks: Vec<(u64, f64)>,
+    /// Periodic validation checks over the whole run (0 = not decided yet: the first call
+    /// decides from the time one check takes, [`val_checks`]).
+    pub val_checks: u32,
+    /// Seconds the first validation render took (what [`val_checks`] was decided from).
+    pub val_check_secs: f64,
 }
 
 impl Default for RunState {
@@ -71,6 +76,8 @@ impl Default for RunState {
             recoveries: Vec::new(),
             checks: Vec::new(),
             ema_checks: Vec::new(),
+            val_checks: 0,
+            val_check_secs: 0.0,
         }
     }
 }
@@ -89,8 +96,31 @@ pub struct Checkpointing<'a> {
 pub const PSNR_COLLAPSE_DB: f64 = 3.0;
 /// Recoveries tried before training gives up with [`TrainError::Diverged`].
 pub const MAX_RECOVERIES: usize = 6;
-/// Validation checks over a whole run (one at the end of each equal part of its progress).
+/// Most validation checks over a whole run (one at the end of each equal part of its
+/// progress).
 pub const VAL_CHECKS: u32 = 20;
+/// Fewest validation checks over a run with validation views.
+pub const MIN_VAL_CHECKS: u32 = 4;
+/// Largest share of a time budget the periodic validation checks may take.
+pub const VAL_SHARE: f64 = 0.05;
+
+/// How many periodic validation checks a run makes: [`VAL_CHECKS`], fewer when they would
+/// take more than [`VAL_SHARE`] of the time budget at `check_secs` each (never fewer than
+/// [`MIN_VAL_CHECKS`]). Why: at 60 s on the development set twenty checks took about 12% of
+/// the budget, steps a short bake needs more than a finer choice of its best state. A run
+/// without a budget (`budget` 0) keeps [`VAL_CHECKS`], so fixed-step runs stay reproducible.
+pub fn val_checks(budget: f64, check_secs: f64) -> u32 {
+    if !(budget > 0.0 && check_secs > 0.0) {
+        return VAL_CHECKS;
+    }
+    let n = (VAL_SHARE * budget / check_secs).floor();
+    if n >= f64::from(VAL_CHECKS) {
+        VAL_CHECKS
+    } else {
+        // Below VAL_CHECKS here, so the cast cannot overflow.
+        (n.max(0.0) as u32).max(MIN_VAL_CHECKS)
+    }
+}
 
 /// Mean PSNR of the trainer's current state on `views`.
 pub fn mean_psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
@@ -102,7 +132,8 @@ pub fn mean_psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
 /// time budget or step limit, whichever comes first; auto stops earlier to prune, then calls
 /// again). The learning rates follow the configuration's schedule over the whole run.
 ///
-/// - Every `1 / VAL_CHECKS` of progress (and at the end) the validation views are rendered;
+/// - Every `1 / n` of progress (and at the end) the validation views are rendered, `n` from
+///   [`val_checks`] (decided by the first call from the time its first render takes);
 ///   the best state so far is kept, and when the call ends the best state replaces the final
 ///   one if that is worse, so the result is never worse on validation than an earlier state
 ///   of the same call, its starting state included (measured when the call begins).
@@ -127,9 +158,6 @@ pub fn run(
     if state.next_eval <= 0.0 {
         state.next_eval = trainer.cfg.eval_every;
     }
-    if state.next_check <= 0.0 {
-        state.next_check = 1.0 / f64::from(VAL_CHECKS);
-    }
     let (budget, steps, sched) = (
         trainer.cfg.time_budget,
         trainer.cfg.steps,
@@ -145,13 +173,27 @@ pub fn run(
     let start_val = if val.is_empty() {
         f64::NEG_INFINITY
     } else {
+        let t = Instant::now();
         let v = mean_psnr(trainer, val)?;
+        if state.val_checks == 0 {
+            state.val_check_secs = t.elapsed().as_secs_f64();
+            state.val_checks = val_checks(budget, state.val_check_secs);
+        }
         if v.is_finite() {
             v
         } else {
             f64::NEG_INFINITY
         }
     };
+    // Without validation views no check is made (and no count decided).
+    let n_checks = f64::from(if state.val_checks == 0 {
+        VAL_CHECKS
+    } else {
+        state.val_checks
+    });
+    if state.next_check <= 0.0 {
+        state.next_check = 1.0 / n_checks;
+    }
     let mut best: (Checkpoint, f64) = (trainer.checkpoint(state), start_val);
     let recover = |trainer: &mut Trainer,
                    state: &mut RunState,
@@ -202,7 +244,7 @@ pub fn run(
         on_step(trainer, state.train_secs);
         if !val.is_empty() && progress(trainer, state) >= state.next_check {
             let p = progress(trainer, state);
-            state.next_check = ((p * f64::from(VAL_CHECKS)).floor() + 1.0) / f64::from(VAL_CHECKS);
+            state.next_check = ((p * n_checks).floor() + 1.0) / n_checks;
             let v = check(trainer, state, val)?;
             if !v.is_finite() || v < best.1 - PSNR_COLLAPSE_DB {
                 recover(
@@ -347,4 +389,27 @@ fn record(trainer: &mut Trainer, state: &RunState, test: &[View]) -> Result<Reco
         val_psnr: state.last_val,
         lr_factor: f64::from(trainer.lr_scale()),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn checks_take_at_most_their_share_of_a_budget() {
+        // No budget (a fixed-step run) or no measurement: the most checks.
+        assert_eq!(val_checks(0.0, 0.3), VAL_CHECKS);
+        assert_eq!(val_checks(60.0, 0.0), VAL_CHECKS);
+        assert_eq!(val_checks(60.0, f64::NAN), VAL_CHECKS);
+        // Cheap checks on a long budget: capped.
+        assert_eq!(val_checks(300.0, 0.5), VAL_CHECKS);
+        // 5% of 60 s is 3 s: eight checks of 0.34 s fit, nine do not.
+        let n = val_checks(60.0, 0.34);
+        assert_eq!(n, 8);
+        assert!(f64::from(n) * 0.34 <= VAL_SHARE * 60.0);
+        assert!(f64::from(n + 1) * 0.34 > VAL_SHARE * 60.0);
+        // Checks dearer than the share allows still leave the fewest.
+        assert_eq!(val_checks(10.0, 5.0), MIN_VAL_CHECKS);
+        assert_eq!(val_checks(1e300, 1e-300), VAL_CHECKS);
+    }
 }
