@@ -228,7 +228,8 @@ fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::
         .draw()?;
     for (i, name) in configs.iter().enumerate() {
         let colour = COLOURS[i % COLOURS.len()];
-        if let Some((_, recs)) = t.curves.iter().find(|(c, _)| c == name) {
+        let curve = t.curves.iter().find(|(c, _)| c == name);
+        if let Some((_, recs)) = curve {
             let curve: Vec<(f64, f64)> = recs
                 .iter()
                 .filter(|r| r.seconds >= x_lo && r.test_psnr.is_finite())
@@ -252,7 +253,13 @@ fn panel(t: &Table, area: &Area, configs: &[String]) -> Result<(), Box<dyn std::
                     colour.filled(),
                 )
             });
-        chart.draw_series(dots)?;
+        let drawn = chart.draw_series(dots)?;
+        // A configuration with results but no records is named by its dot.
+        if curve.is_none() {
+            drawn
+                .label(name.clone())
+                .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+        }
     }
     legend(&mut chart)
 }
