@@ -84,6 +84,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     }
     if qat.is_some() {
         trainer.set_qat(qat.clone());
+        state.current_val = None;
         train::run(
             &mut trainer,
             &mut state,

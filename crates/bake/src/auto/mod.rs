@@ -255,7 +255,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let mut level_checks = Vec::new();
     for &at in &resolution::CHECKS {
         phases.train += train_phase(&mut tr, &mut state, at, &loaded, &progress)?;
-        if let Some(c) = resolution::check_finest(&mut tr, loaded.val(), at, PRUNE_DB)? {
+        if let Some(c) = resolution::check_finest(&mut tr, &mut state, loaded.val(), at, PRUNE_DB)? {
             state.train_secs += c.seconds;
             phases.train += c.seconds;
             level_checks.push(c);
@@ -264,7 +264,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     decisions.push(resolution_decision(&level_checks, &tr));
     decisions.push(checks_decision(&state, tr.cfg.time_budget));
     phases.train += train_phase(&mut tr, &mut state, PRUNE_AT, &loaded, &progress)?;
-    let trained_psnr = train::run::mean_psnr(&tr, loaded.val())?;
+    let trained_psnr = train::run::current_psnr(&tr, &mut state, loaded.val())?;
     let net = tr.export_net();
     let (unpruned_bytes, unpruned_ms) = pipeline::measure_asset(
         &loaded,
@@ -285,7 +285,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
         phases.train_after_pruning = secs;
         storage_choice = choice;
-        train::run::mean_psnr(&tr, loaded.val())?
+        train::run::current_psnr(&tr, &mut state, loaded.val())?
     } else {
         trained_psnr
     };
@@ -325,7 +325,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             format!("it reaches {trained_psnr:.2} dB on the validation views against {classical_psnr:.2} dB for the classical texture"),
         ));
         // 5. Prune; 6. train on to the end of the budget.
-        let pruning = prune::prune(&mut tr, loaded.val(), PRUNE_DB)?;
+        let pruning = prune::prune(&mut tr, loaded.val(), state.current_val.take(), PRUNE_DB)?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
         let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
@@ -580,6 +580,7 @@ fn train_to_end(
         choice = Some(c);
     }
     tr.set_qat(qat.clone());
+    state.current_val = None;
     let after = train_phase(tr, state, 1.0, loaded, progress)?;
     Ok((before + after, choice))
 }

@@ -9,6 +9,7 @@ use dnr_runtime::texture::{Level, Pyramid};
 use serde::Serialize;
 
 use crate::export::ExportNet;
+use crate::train::run::mean_psnr as psnr;
 use crate::train::views::View;
 use crate::train::{TrainError, Trainer};
 
@@ -44,12 +45,6 @@ pub struct Pruning {
     pub seconds: f64,
 }
 
-/// Mean validation PSNR (dB) of the trainer's current state.
-pub fn psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
-    let e = trainer.evaluate(views)?;
-    Ok(e.iter().map(|e| e.psnr).sum::<f64>() / e.len().max(1) as f64)
-}
-
 /// Channels pruning may remove: not the colour channels 0..2 (the mean-colour loss and the
 /// fallback material read them) and not the SH band (the extension fixes its position).
 pub fn prunable_channels(channels: usize, sh: Option<(u32, u32)>) -> Vec<usize> {
@@ -62,14 +57,18 @@ pub fn prunable_channels(channels: usize, sh: Option<(u32, u32)>) -> Vec<usize> 
 /// Tries removing each level and each prunable channel alone, keeps those costing less than
 /// `threshold_db`, then re-measures them together and takes back the costliest until the
 /// joint cost is within the threshold. Applies the result to the trainer (levels removed,
-/// channels held at zero).
+/// channels held at zero). `base` is the current state's validation PSNR when known.
 pub fn prune(
     trainer: &mut Trainer,
     views: &[View],
+    base: Option<f64>,
     threshold_db: f64,
 ) -> Result<Pruning, TrainError> {
     let t0 = std::time::Instant::now();
-    let base = psnr(trainer, views)?;
+    let base = match base {
+        Some(b) => b,
+        None => psnr(trainer, views)?,
+    };
     let c = trainer.pyr.channels;
     let mut trials = Vec::new();
     let nlev = trainer.pyr.levels.len();

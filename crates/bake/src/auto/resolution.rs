@@ -11,7 +11,8 @@
 
 use serde::Serialize;
 
-use crate::train::run::mean_psnr;
+use crate::train::run::{current_psnr, mean_psnr};
+use crate::train::RunState;
 use crate::train::views::View;
 use crate::train::{TrainError, Trainer};
 
@@ -39,9 +40,11 @@ pub struct LevelCheck {
 }
 
 /// Tries the finest level (when more than [`MIN_LEVELS`] remain) and removes it when it buys
-/// less than `threshold_db` on `val`.
+/// less than `threshold_db` on `val`. The state's known validation PSNR (the phase's last
+/// check) stands for the render with it.
 pub fn check_finest(
     trainer: &mut Trainer,
+    state: &mut RunState,
     val: &[View],
     progress: f64,
     threshold_db: f64,
@@ -50,7 +53,7 @@ pub fn check_finest(
         return Ok(None);
     }
     let t0 = std::time::Instant::now();
-    let with_db = mean_psnr(trainer, val)?;
+    let with_db = current_psnr(trainer, state, val)?;
     let n = trainer.pyr.levels[0].data.len();
     let side = trainer.pyr.levels[0]
         .width
@@ -62,6 +65,7 @@ pub fn check_finest(
     let removed = with_db - without_db < threshold_db;
     if removed {
         trainer.remove_level(0);
+        state.current_val = None;
     }
     Ok(Some(LevelCheck {
         progress,

@@ -63,6 +63,11 @@ pub struct RunState {
     pub val_checks: u32,
     /// Seconds the first validation render took (what [`val_checks`] was decided from).
     pub val_check_secs: f64,
+    /// Validation PSNR of the trainer's current state, when known: [`run`] sets it when it
+    /// returns and takes it as its starting state's value instead of rendering again. Code
+    /// that changes the trainer between calls (a level removed, pruning, quantisation) sets
+    /// it to what it measured, or clears it.
+    pub current_val: Option<f64>,
 }
 
 impl Default for RunState {
@@ -78,6 +83,7 @@ impl Default for RunState {
             ema_checks: Vec::new(),
             val_checks: 0,
             val_check_secs: 0.0,
+            current_val: None,
         }
     }
 }
@@ -128,15 +134,35 @@ pub fn mean_psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
     Ok(e.iter().map(|e| e.psnr).sum::<f64>() / e.len().max(1) as f64)
 }
 
+/// Validation PSNR of the trainer's current state: [`RunState::current_val`] when known,
+/// else rendered (and then known).
+pub fn current_psnr(
+    trainer: &Trainer,
+    state: &mut RunState,
+    val: &[View],
+) -> Result<f64, TrainError> {
+    if let Some(v) = state.current_val {
+        return Ok(v);
+    }
+    let v = mean_psnr(trainer, val)?;
+    state.current_val = Some(v).filter(|v| v.is_finite());
+    Ok(v)
+}
+
 /// Trains from the state's progress up to progress `until` (1 = the end of the run: its
 /// time budget or step limit, whichever comes first; auto stops earlier to prune, then calls
 /// again). The learning rates follow the configuration's schedule over the whole run.
 ///
 /// - Every `1 / n` of progress (and at the end) the validation views are rendered, `n` from
-///   [`val_checks`] (decided by the first call from the time its first render takes);
-///   the best state so far is kept, and when the call ends the best state replaces the final
-///   one if that is worse, so the result is never worse on validation than an earlier state
-///   of the same call, its starting state included (measured when the call begins).
+///   [`val_checks`] (decided by the first call from the time its first render takes).
+/// - The call that reaches the end of the run hands back its best state when the final one
+///   is worse, so the result is never worse on validation than an earlier state of that
+///   call, its starting state included. A call that stops earlier (auto's phases) hands back
+///   its last state: the next phase continues the trajectory instead of restarting from a
+///   check that validation noise flattered. (On the development set's coarse thin capture at
+///   600 s, returns to one lucky check at every phase end cost 40% of the bake.)
+/// - The starting state's validation PSNR is [`RunState::current_val`] when known, else
+///   rendered.
 /// - Divergence recovery: a non-finite training loss, or a validation PSNR that is
 ///   non-finite or [`PSNR_COLLAPSE_DB`] below the best so far, rolls the trainer back to the
 ///   best state (or the start), halves both base learning rates and records a [`Recovery`];
@@ -168,10 +194,12 @@ pub fn run(
     let until = until.clamp(0.0, 1.0);
     let mut last_ckpt = Instant::now();
     // The best validated state so far, starting with the state this call starts from: auto
-    // trains in phases (one call each), and a phase that only loses on validation must hand
-    // back its start, not the best of its own checks.
+    // trains in phases (one call each), and a last phase that only loses on validation must
+    // hand back its start, not the best of its own checks.
     let start_val = if val.is_empty() {
         f64::NEG_INFINITY
+    } else if let Some(v) = state.current_val.take().filter(|_| state.val_checks > 0) {
+        v
     } else {
         let t = Instant::now();
         let v = mean_psnr(trainer, val)?;
@@ -279,7 +307,9 @@ pub fn run(
             }
         }
     }
-    // The final state is checked too; the best replaces it when better.
+    // The final state is checked too; at the end of the run the best replaces it when better.
+    let at_end = until >= 1.0 || trainer.step >= steps;
+    state.current_val = None;
     if !val.is_empty() {
         let v = if state.checks.last().is_some_and(|c| c.0 == trainer.step) {
             state.last_val
@@ -293,12 +323,14 @@ pub fn run(
             v
         };
         let worse = v.is_nan() || v < best.1;
-        if best.1.is_finite() && worse {
+        state.current_val = Some(v).filter(|v| v.is_finite());
+        if at_end && best.1.is_finite() && worse {
             let keep = keep_progress(state);
             let last = trainer.step;
             trainer.restore(&best.0, Path::new("(in-memory snapshot)"))?;
             put_progress(state, keep);
             state.last_val = best.1;
+            state.current_val = Some(best.1);
             eprintln!(
                 "dnr-bake: the state at step {last} ({v:.2} dB on validation) is worse than the one at step {} ({:.2} dB): keeping that",
                 trainer.step, best.1
