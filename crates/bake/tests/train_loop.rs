@@ -135,16 +135,24 @@ fn a_finest_level_of_noise_is_removed_and_one_within_the_bound_kept() {
         x ^= x << 5;
         *v = (x as f32 / u32::MAX as f32 - 0.5) * 4.0;
     }
-    let c = check_finest(&mut t, &mut RunState::default(), &val, 0.5, 0.05).unwrap().unwrap();
+    let c = check_finest(&mut t, &mut RunState::default(), &val, 0.5, 0.05)
+        .unwrap()
+        .unwrap();
     assert!(c.without_db > c.with_db, "{c:?}");
     assert!(c.removed && t.pyr.levels.len() == 2, "{c:?}");
     // Two levels left: never tried.
-    assert!(check_finest(&mut t, &mut RunState::default(), &val, 0.6, 0.05).unwrap().is_none());
+    assert!(
+        check_finest(&mut t, &mut RunState::default(), &val, 0.6, 0.05)
+            .unwrap()
+            .is_none()
+    );
 
     // The trained level, against a bound it beats (removal only below a 1 dB loss): kept,
     // and the texture is left exactly as it was.
     t.pyr = trained.clone();
-    let c = check_finest(&mut t, &mut RunState::default(), &val, 0.5, -1.0).unwrap().unwrap();
+    let c = check_finest(&mut t, &mut RunState::default(), &val, 0.5, -1.0)
+        .unwrap()
+        .unwrap();
     assert!(!c.removed && c.with_db - c.without_db >= -1.0, "{c:?}");
     assert_eq!(t.pyr.levels.len(), 3);
     assert_eq!(t.pyr.levels[0].data, trained.levels[0].data);
@@ -209,17 +217,34 @@ fn a_call_that_stops_early_hands_back_its_last_state_and_what_it_measured() {
     t.cfg.steps = 200;
     t.cfg.schedule = Schedule::CONSTANT;
     t.set_learning_rates(0.5, 0.5);
-    run(&mut t, &mut state, 0.6, &fit, &val, &[], None, |_, _| {}, |_| {}).unwrap();
+    run(
+        &mut t,
+        &mut state,
+        0.6,
+        &fit,
+        &val,
+        &[],
+        None,
+        |_, _| {},
+        |_| {},
+    )
+    .unwrap();
     assert_eq!(t.step, 120, "the call stops at 60% of 200 steps");
     let now = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
-    assert!(now < start, "the scenario needs a worse state: {now} vs {start}");
+    assert!(
+        now < start,
+        "the scenario needs a worse state: {now} vs {start}"
+    );
     assert!((known(&state) - now).abs() < 1e-9);
     // The next call, to the end, counts that state as its start (no render of its own), and
     // a state no worse than it is what the run ends with.
     let checks_before = state.checks.len();
     run_quietly(&mut t, &mut state, &fit, &val);
     let end = dnr_bake::train::run::mean_psnr(&t, &val).unwrap();
-    assert!(end >= now - 1e-9, "end {end} dB, start of the last call {now} dB");
+    assert!(
+        end >= now - 1e-9,
+        "end {end} dB, start of the last call {now} dB"
+    );
     assert!((known(&state) - end).abs() < 1e-9);
     assert!(state.checks.len() > checks_before);
 }

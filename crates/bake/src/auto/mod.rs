@@ -255,7 +255,8 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let mut level_checks = Vec::new();
     for &at in &resolution::CHECKS {
         phases.train += train_phase(&mut tr, &mut state, at, &loaded, &progress)?;
-        if let Some(c) = resolution::check_finest(&mut tr, &mut state, loaded.val(), at, PRUNE_DB)? {
+        if let Some(c) = resolution::check_finest(&mut tr, &mut state, loaded.val(), at, PRUNE_DB)?
+        {
             state.train_secs += c.seconds;
             phases.train += c.seconds;
             level_checks.push(c);

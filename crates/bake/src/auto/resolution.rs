@@ -12,8 +12,8 @@
 use serde::Serialize;
 
 use crate::train::run::{current_psnr, mean_psnr};
-use crate::train::RunState;
 use crate::train::views::View;
+use crate::train::RunState;
 use crate::train::{TrainError, Trainer};
 
 /// Fractions of the budget at which the finest level is tried.

@@ -135,18 +135,33 @@ pub fn mean_psnr(trainer: &Trainer, views: &[View]) -> Result<f64, TrainError> {
 }
 
 /// Validation PSNR of the trainer's current state: [`RunState::current_val`] when known,
-/// else rendered (and then known).
+/// else rendered (the time counts as training time, and then the figure is known). The first
+/// render decides the number of periodic checks ([`val_checks`]) from its time.
 pub fn current_psnr(
     trainer: &Trainer,
     state: &mut RunState,
     val: &[View],
 ) -> Result<f64, TrainError> {
-    if let Some(v) = state.current_val {
+    if let Some(v) = state.current_val.filter(|_| state.val_checks > 0) {
         return Ok(v);
     }
+    let t = Instant::now();
     let v = mean_psnr(trainer, val)?;
+    let secs = t.elapsed().as_secs_f64();
+    state.train_secs += secs;
+    if state.val_checks == 0 {
+        state.val_check_secs = secs;
+        state.val_checks = val_checks(trainer.cfg.time_budget, secs);
+    }
     state.current_val = Some(v).filter(|v| v.is_finite());
     Ok(v)
+}
+
+/// The point of the next periodic check after one at progress `p`: the first of the `n`
+/// checks' points (`k / n`) at least half a period after `p`, so that two checks are never
+/// closer than that.
+pub fn next_check_after(p: f64, n: f64) -> f64 {
+    ((p * n + 0.5).floor() + 1.0) / n
 }
 
 /// Trains from the state's progress up to progress `until` (1 = the end of the run: its
@@ -198,21 +213,17 @@ pub fn run(
     // hand back its start, not the best of its own checks.
     let start_val = if val.is_empty() {
         f64::NEG_INFINITY
-    } else if let Some(v) = state.current_val.take().filter(|_| state.val_checks > 0) {
-        v
     } else {
-        let t = Instant::now();
-        let v = mean_psnr(trainer, val)?;
-        if state.val_checks == 0 {
-            state.val_check_secs = t.elapsed().as_secs_f64();
-            state.val_checks = val_checks(budget, state.val_check_secs);
-        }
+        let v = current_psnr(trainer, state, val)?;
         if v.is_finite() {
             v
         } else {
             f64::NEG_INFINITY
         }
     };
+    // Training changes the state from here on.
+    state.current_val = None;
+    let start_step = trainer.step;
     // Without validation views no check is made (and no count decided).
     let n_checks = f64::from(if state.val_checks == 0 {
         VAL_CHECKS
@@ -272,20 +283,23 @@ pub fn run(
         on_step(trainer, state.train_secs);
         if !val.is_empty() && progress(trainer, state) >= state.next_check {
             let p = progress(trainer, state);
-            state.next_check = ((p * n_checks).floor() + 1.0) / n_checks;
-            let v = check(trainer, state, val)?;
-            if !v.is_finite() || v < best.1 - PSNR_COLLAPSE_DB {
-                recover(
-                    trainer,
-                    state,
-                    &best.0,
-                    format!("validation PSNR fell to {v:.2} dB (best {:.2} dB)", best.1),
-                )?;
-                continue;
-            } else if v >= best.1 {
-                best = (trainer.checkpoint(state), v);
+            state.next_check = next_check_after(p, n_checks);
+            // A call that ends within half a period checks its end instead.
+            if until - p >= 0.5 / n_checks {
+                let v = check(trainer, state, val)?;
+                if !v.is_finite() || v < best.1 - PSNR_COLLAPSE_DB {
+                    recover(
+                        trainer,
+                        state,
+                        &best.0,
+                        format!("validation PSNR fell to {v:.2} dB (best {:.2} dB)", best.1),
+                    )?;
+                    continue;
+                } else if v >= best.1 {
+                    best = (trainer.checkpoint(state), v);
+                }
+                check_ema(trainer, state, val, &mut best)?;
             }
-            check_ema(trainer, state, val, &mut best)?;
         }
         if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
             state.next_eval += trainer.cfg.eval_every;
@@ -309,9 +323,11 @@ pub fn run(
     }
     // The final state is checked too; at the end of the run the best replaces it when better.
     let at_end = until >= 1.0 || trainer.step >= steps;
-    state.current_val = None;
     if !val.is_empty() {
-        let v = if state.checks.last().is_some_and(|c| c.0 == trainer.step) {
+        let v = if trainer.step == start_step {
+            // No step taken: the start's figure is the state's.
+            start_val
+        } else if state.checks.last().is_some_and(|c| c.0 == trainer.step) {
             state.last_val
         } else {
             let v = check(trainer, state, val)?;
@@ -324,6 +340,8 @@ pub fn run(
         };
         let worse = v.is_nan() || v < best.1;
         state.current_val = Some(v).filter(|v| v.is_finite());
+        let p = progress(trainer, state);
+        state.next_check = state.next_check.max(next_check_after(p, n_checks));
         if at_end && best.1.is_finite() && worse {
             let keep = keep_progress(state);
             let last = trainer.step;
@@ -443,5 +461,20 @@ mod tests {
         // Checks dearer than the share allows still leave the fewest.
         assert_eq!(val_checks(10.0, 5.0), MIN_VAL_CHECKS);
         assert_eq!(val_checks(1e300, 1e-300), VAL_CHECKS);
+    }
+
+    #[test]
+    fn checks_are_at_least_half_a_period_apart() {
+        // Just past a point, as a periodic check is: the next point.
+        assert_eq!(next_check_after(0.3 + 1e-6, 20.0), 0.35);
+        assert_eq!(next_check_after(0.250_01, 8.0), 0.375);
+        // A phase's end check between points: the next point at least half a period on
+        // (0.375 is 0.6 of a period after 0.3; 0.5 only 0.4 after 0.45, so 0.625).
+        assert_eq!(next_check_after(0.3, 8.0), 0.375);
+        assert_eq!(next_check_after(0.45, 8.0), 0.625);
+        for (p, n) in [(0.3, 8.0), (0.61, 9.0), (0.999, 20.0), (0.0, 4.0)] {
+            let next = next_check_after(p, n);
+            assert!(next - p >= 0.5 / n - 1e-12 && next - p <= 1.5 / n + 1e-12);
+        }
     }
 }
