@@ -35,7 +35,8 @@ pub struct LevelCheck {
     pub without_db: f64,
     /// Whether it was removed.
     pub removed: bool,
-    /// Seconds the trial took (rendering the validation views twice).
+    /// Seconds the trial took: the render without the level (the render with it is the
+    /// state's known figure, or counted as training time where it had none).
     pub seconds: f64,
 }
 
@@ -52,8 +53,8 @@ pub fn check_finest(
     if val.is_empty() || trainer.pyr.levels.len() <= MIN_LEVELS {
         return Ok(None);
     }
-    let t0 = std::time::Instant::now();
     let with_db = current_psnr(trainer, state, val)?;
+    let t0 = std::time::Instant::now();
     let n = trainer.pyr.levels[0].data.len();
     let side = trainer.pyr.levels[0]
         .width
