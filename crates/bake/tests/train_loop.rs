@@ -250,6 +250,73 @@ fn a_call_that_stops_early_hands_back_its_last_state_and_what_it_measured() {
 }
 
 #[test]
+fn a_run_whose_validation_stalls_goes_back_to_its_best_state_and_anneals_again() {
+    use dnr_bake::train::run::{mean_psnr, REANNEAL_AFTER, REANNEAL_MIN_LEFT, REANNEAL_PATIENCE};
+    let (fit, val) = sample_views();
+    // A 400-step run in two calls (as auto's phases are): the first trains to 20%, the
+    // second runs at rates too small to move the state, so no later check gains on the first
+    // call's best and validation stalls.
+    let mut t = Trainer::new(cfg(2e-3, 400), &fit).unwrap();
+    let mut state = RunState::default();
+    run(
+        &mut t,
+        &mut state,
+        0.2,
+        &fit,
+        &val,
+        &[],
+        None,
+        |_, _| {},
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(t.step, 80);
+    let first: Vec<(u64, f64)> = state.checks.iter().map(|c| (c.0, c.2)).collect();
+    let (best_step, best_val) =
+        first
+            .iter()
+            .copied()
+            .fold((0, f64::NEG_INFINITY), |a, c| if c.1 > a.1 { c } else { a });
+    let start = mean_psnr(&t, &val).unwrap();
+    t.set_learning_rates(1e-30, 1e-30);
+    let checks_before = state.checks.len();
+    run_quietly(&mut t, &mut state, &fit, &val);
+    let checks: Vec<(u64, f64)> = state.checks[checks_before..]
+        .iter()
+        .map(|c| (c.0, c.2))
+        .collect();
+    eprintln!("first call {first:?}, start {start:.3} dB, second call {checks:?}");
+    assert!(
+        best_val > start || best_step == 80,
+        "the scenario's best check is the first call's"
+    );
+    let r = state.reanneal.expect("the run re-annealed");
+    assert_eq!(r.from_step, best_step, "{r:?}");
+    assert!((r.from - best_step as f64 / 400.0).abs() < 1e-9, "{r:?}");
+    assert!((r.val_db - best_val).abs() < 1e-9, "{r:?}");
+    let eps = 1e-9;
+    assert!(
+        r.at >= REANNEAL_AFTER - eps
+            && r.at - r.from >= REANNEAL_PATIENCE - eps
+            && r.at <= 1.0 - REANNEAL_MIN_LEFT + eps,
+        "{r:?}"
+    );
+    // It fired at the first check where the stall counted, and the steps went on to the end.
+    let fired = checks
+        .iter()
+        .find(|c| c.0 as f64 / 400.0 >= (r.from + REANNEAL_PATIENCE).max(REANNEAL_AFTER) - eps)
+        .expect("checks past half the run");
+    assert_eq!(r.at_step, fired.0, "{r:?}");
+    assert_eq!(state.checks.last().unwrap().0, 400);
+    // It is what the run ends with: the state it went back to, which nothing after gained on.
+    let end = mean_psnr(&t, &val).unwrap();
+    assert!(
+        (end - best_val).abs() < 1e-9,
+        "end {end} dB, best {best_val} dB"
+    );
+}
+
+#[test]
 fn the_moving_average_competes_with_the_state_and_the_best_of_both_is_kept() {
     let (fit, val) = sample_views();
     // A noisy constant rate (as above), with an average over about 10 steps.

@@ -23,7 +23,8 @@
 //! 5. [`train_phase`] to `PRUNE_AT` of the budget, trying the finest level on the way
 //!    ([`resolution`]: removed as soon as it buys less than [`PRUNE_DB`]); then, when the network beats the classical
 //!    texture by [`PRUNE_DB`] on the validation views, levels and channels that cost less than
-//!    that are removed ([`prune`]); when it does not (yet), it trains on unpruned to the end
+//!    that are removed ([`prune`], its trials bounded by [`PRUNE_SHARE`] of the budget); when
+//!    it does not (yet), it trains on unpruned to the end
 //!    and the texture alone is written only if the network still buys less than that there.
 //! 6. [`train_phase`] to the end of the budget; the schedule anneals the learning rates to
 //!    its floor, and the best validated state is what gets written. With quantised storage
@@ -52,6 +53,10 @@ use crate::train::{self, RunState, TrainError, Trainer};
 /// Validation PSNR (dB) a removal may cost and still be made; also the least a network must
 /// buy over the classical texture to be kept.
 pub const PRUNE_DB: f64 = 0.05;
+/// Largest share of the budget pruning's validation renders may take. Why a bound: on the
+/// development set pruning at 70% removed one channel in 24 bakes, and its renders took
+/// 1.4 to 8.5 s of each, 2-3% of a 60 s bake (docs/benchmarks.md).
+pub const PRUNE_SHARE: f64 = 0.01;
 /// Fraction of the budget trained before pruning (the rest trains the pruned model on, as
 /// the schedule anneals).
 pub const PRUNE_AT: f64 = 0.7;
@@ -326,7 +331,14 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             format!("it reaches {trained_psnr:.2} dB on the validation views against {classical_psnr:.2} dB for the classical texture"),
         ));
         // 5. Prune; 6. train on to the end of the budget.
-        let pruning = prune::prune(&mut tr, loaded.val(), state.current_val.take(), PRUNE_DB)?;
+        let renders = prune_renders(tr.cfg.time_budget, state.val_check_secs);
+        let pruning = prune::prune(
+            &mut tr,
+            loaded.val(),
+            state.current_val.take(),
+            PRUNE_DB,
+            renders,
+        )?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
         let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
@@ -355,6 +367,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             phases.train_after_pruning,
         ));
     }
+    decisions.push(schedule_decision(&tr.cfg.schedule, state.reanneal.as_ref()));
     let report = AutoReport {
         budget,
         validation_views: loaded.val_names(),
@@ -586,6 +599,59 @@ fn train_to_end(
     Ok((before + after, choice))
 }
 
+/// The report line of the learning-rate schedule and of the re-anneal when validation
+/// stalled ([`train::run::stalled`]).
+fn schedule_decision(
+    sched: &train::schedule::Schedule,
+    reanneal: Option<&train::run::Reanneal>,
+) -> Decision {
+    let plan = format!(
+        "{:?} from 1 to {} of the base rates over the budget after a {:.0}% warm-up",
+        sched.shape,
+        sched.floor,
+        100.0 * sched.warmup
+    )
+    .to_lowercase();
+    let rule = format!(
+        "a run re-anneals once when no validation check has gained for {:.0}% of the budget, after {:.0}% of it and with {:.0}% left",
+        100.0 * train::run::REANNEAL_PATIENCE,
+        100.0 * train::run::REANNEAL_AFTER,
+        100.0 * train::run::REANNEAL_MIN_LEFT
+    );
+    match reanneal {
+        None => Decision::plain("learning-rate schedule", plan, format!("{rule}; validation did not stall")),
+        Some(r) => Decision::plain(
+            "learning-rate schedule",
+            format!(
+                "{plan}; re-annealed at {:.0}% from the state of {:.0}%",
+                100.0 * r.at,
+                100.0 * r.from
+            ),
+            format!(
+                "{rule}: the best check was {:.2} dB at {:.0}% (step {}), the check at {:.0}% (step {}) {:.2} dB; training went back to that state and replayed the schedule from {:.0}% over the rest of the budget",
+                r.val_db,
+                100.0 * r.from,
+                r.from_step,
+                100.0 * r.at,
+                r.at_step,
+                r.stalled_db,
+                100.0 * r.from
+            ),
+        ),
+    }
+}
+
+/// Validation renders pruning may take: [`PRUNE_SHARE`] of the budget at `render_secs` each
+/// (the run's first validation render). Without a budget or a timing, no bound.
+fn prune_renders(budget: f64, render_secs: f64) -> usize {
+    if budget > 0.0 && render_secs > 0.0 {
+        // Non-negative and finite here; the cast saturates.
+        (PRUNE_SHARE * budget / render_secs).floor() as usize
+    } else {
+        usize::MAX
+    }
+}
+
 /// The report line of how often validation checks the state ([`train::run::val_checks`]).
 fn checks_decision(state: &RunState, budget: f64) -> Decision {
     let n = state.val_checks;
@@ -684,6 +750,16 @@ fn pruning_decision(p: &prune::Pruning, bytes: i64, ms: f64, after: f64) -> Deci
             .join(", ")
             + &format!(
                 " (removed when it costs less than {PRUNE_DB} dB; then trained {after:.0} s more as the schedule annealed)"
-            ),
+            )
+            + &if p.untried.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; not tried: {} ({} validation renders fit in {:.0}% of the budget)",
+                    p.untried.join(", "),
+                    p.renders_afforded,
+                    100.0 * PRUNE_SHARE
+                )
+            },
     }
 }

@@ -41,6 +41,11 @@ pub struct Pruning {
     pub levels: Vec<usize>,
     /// Channels held at zero and dropped at export.
     pub channels: Vec<usize>,
+    /// Removals not tried: the budget's share for pruning ([`super::PRUNE_SHARE`]) did not
+    /// afford their renders (the largest savings are tried first).
+    pub untried: Vec<String>,
+    /// Validation renders the share afforded (trials, and one for the joint check).
+    pub renders_afforded: usize,
     /// Seconds the trials took.
     pub seconds: f64,
 }
@@ -58,40 +63,64 @@ pub fn prunable_channels(channels: usize, sh: Option<(u32, u32)>) -> Vec<usize> 
 /// `threshold_db`, then re-measures them together and takes back the costliest until the
 /// joint cost is within the threshold. Applies the result to the trainer (levels removed,
 /// channels held at zero). `base` is the current state's validation PSNR when known.
+///
+/// `renders` bounds the validation renders: levels (finest first) and then channels are
+/// tried while they leave one render for the joint check, and the rest are recorded as
+/// untried. Zero renders tries nothing.
 pub fn prune(
     trainer: &mut Trainer,
     views: &[View],
     base: Option<f64>,
     threshold_db: f64,
+    renders: usize,
 ) -> Result<Pruning, TrainError> {
     let t0 = std::time::Instant::now();
+    let c = trainer.pyr.channels;
+    let nlev = trainer.pyr.levels.len();
+    let mut items: Vec<Item> = if nlev > 1 {
+        (0..nlev).map(Item::Level).collect()
+    } else {
+        Vec::new()
+    };
+    items.extend(
+        prunable_channels(c, trainer.sh_layer())
+            .into_iter()
+            .filter(|ch| !trainer.zero_channels().contains(ch))
+            .map(Item::Channel),
+    );
+    // One render is the base when it is not known; one is kept for the joint check.
+    let base_renders = usize::from(base.is_none());
+    let tried = match renders.checked_sub(base_renders + 1) {
+        Some(n) if n > 0 => n.min(items.len()),
+        _ => 0,
+    };
+    let untried: Vec<String> = items[tried..].iter().map(Item::to_string).collect();
+    items.truncate(tried);
     let base = match base {
         Some(b) => b,
+        None if items.is_empty() => f64::NAN,
         None => psnr(trainer, views)?,
     };
-    let c = trainer.pyr.channels;
-    let mut trials = Vec::new();
-    let nlev = trainer.pyr.levels.len();
-    for k in 0..nlev {
-        if nlev == 1 {
-            break;
-        }
-        let l = &trainer.pyr.levels[k];
-        let (values, n) = (l.width * l.height * c, l.data.len());
-        let saved = std::mem::replace(&mut trainer.pyr.levels[k].data, vec![0.0; n]);
-        let p = psnr(trainer, views)?;
-        trainer.pyr.levels[k].data = saved;
-        trials.push((Item::Level(k), base - p, values));
-    }
     let texels: usize = trainer.pyr.levels.iter().map(|l| l.width * l.height).sum();
-    for ch in prunable_channels(c, trainer.sh_layer()) {
-        if trainer.zero_channels().contains(&ch) {
-            continue;
-        }
-        let saved = zero_channel(&mut trainer.pyr, ch);
-        let p = psnr(trainer, views)?;
-        restore_channel(&mut trainer.pyr, ch, &saved);
-        trials.push((Item::Channel(ch), base - p, texels));
+    let mut trials = Vec::new();
+    for it in items {
+        let (p, values) = match it {
+            Item::Level(k) => {
+                let l = &trainer.pyr.levels[k];
+                let (values, n) = (l.width * l.height * c, l.data.len());
+                let saved = std::mem::replace(&mut trainer.pyr.levels[k].data, vec![0.0; n]);
+                let p = psnr(trainer, views);
+                trainer.pyr.levels[k].data = saved;
+                (p?, values)
+            }
+            Item::Channel(ch) => {
+                let saved = zero_channel(&mut trainer.pyr, ch);
+                let p = psnr(trainer, views);
+                restore_channel(&mut trainer.pyr, ch, &saved);
+                (p?, texels)
+            }
+        };
+        trials.push((it, base - p, values));
     }
     // Cheap removals first; keep a level at least.
     let mut chosen: Vec<(Item, f64)> = trials
@@ -117,7 +146,11 @@ pub fn prune(
     chosen.sort_by(|a, b| a.1.total_cmp(&b.1));
     let mut joint = 0.0;
     while !chosen.is_empty() {
-        joint = base - joint_psnr(trainer, views, &chosen)?;
+        // One removal alone was measured by its trial.
+        joint = match chosen.as_slice() {
+            [(_, cost)] => *cost,
+            _ => base - joint_psnr(trainer, views, &chosen)?,
+        };
         if joint <= threshold_db {
             break;
         }
@@ -158,6 +191,8 @@ pub fn prune(
         joint_cost_db: joint,
         levels,
         channels,
+        untried,
+        renders_afforded: renders,
         seconds: t0.elapsed().as_secs_f64(),
     })
 }

@@ -1,7 +1,7 @@
-//! Network and texture size: rungs from large to small, each timed on this capture and this
+//! Network and texture size: rungs from large to small, timed on this capture and this
 //! machine; the largest whose measured step affords [`MIN_STEPS`] steps in the budget wins
 //! (a measured rate against a stated floor: the larger rung overtakes the smaller only after
-//! about that many steps).
+//! about that many steps). Only the rungs the decision needs are timed (see [`choose`]).
 
 use std::time::Instant;
 
@@ -15,7 +15,7 @@ use crate::train::{TrainError, Trainer};
 /// Steps a rung must be able to take in the budget to be chosen.
 pub const MIN_STEPS: f64 = 2500.0;
 /// Steps before timing a rung (pool and cache warm-up), and steps timed.
-const WARM_STEPS: usize = 2;
+const WARM_STEPS: usize = 4;
 const TIMED_STEPS: usize = 5;
 
 /// A size auto may choose: texture resolution, levels, U-Net widths.
@@ -31,7 +31,7 @@ pub struct Rung {
     pub widths: &'static [u32],
 }
 
-/// Largest first; the last is taken when none is fast enough.
+/// Largest first; the last (smallest) is taken when none is fast enough.
 pub const RUNGS: [Rung; 2] = [
     Rung {
         name: "balanced",
@@ -69,10 +69,15 @@ pub struct RungTrial {
     pub chosen: bool,
 }
 
-/// Times the rungs largest first at one sample per pixel, and returns the trainer of the
-/// first that affords [`MIN_STEPS`] (or of the last), its texture before the timed steps (the
-/// classical texture), and every trial. `cfg.time_budget` is the whole budget; the time since
-/// `t_analysis` counts against it.
+/// Times the rungs and returns the trainer of the largest that affords [`MIN_STEPS`] (or of
+/// the smallest), its texture before the timed steps (the classical texture), and every
+/// trial. `cfg.time_budget` is the whole budget; the time since `t_analysis` counts against
+/// it.
+///
+/// The smallest rung is timed first: a larger rung's step is never faster, so when the
+/// smallest does not afford [`MIN_STEPS`] none does, and a short budget is not spent timing
+/// rungs it cannot take (at 60 s, timing the balanced rung took about 1 s of the minute).
+/// Otherwise the larger rungs are timed largest first.
 ///
 /// With `cfg.supersample` above 1, a rung chosen on its merit (one that affords
 /// [`MIN_STEPS`], not the last resort) is timed again with its subsamples, and trains with
@@ -85,33 +90,62 @@ pub fn choose(
     _fp: &Footprint,
     t_analysis: Instant,
 ) -> Result<(Trainer, dnr_runtime::texture::Pyramid, Vec<RungTrial>), TrainError> {
+    let (smallest, larger) = RUNGS.split_last().expect("at least one rung");
     let mut trials = Vec::new();
-    for (i, r) in RUNGS.iter().enumerate() {
-        let (tr, classical, trial) = time_rung(cfg, fit, sh, r, 1, t_analysis)?;
-        let merit = trial.steps_in_budget >= MIN_STEPS;
-        let ok = merit || i + 1 == RUNGS.len();
-        trials.push(trial);
-        if !ok {
-            continue;
-        }
-        if cfg.supersample > 1 && merit {
-            let (ts, cs, t2) = time_rung(cfg, fit, sh, r, cfg.supersample, t_analysis)?;
-            let affords = t2.steps_in_budget >= SUPERSAMPLE_MIN_STEPS;
-            trials.push(t2);
+    let (small_tr, small_classical, small_trial) =
+        time_rung(cfg, fit, sh, smallest, 1, t_analysis)?;
+    let merit = small_trial.steps_in_budget >= MIN_STEPS;
+    trials.push(small_trial);
+    if merit {
+        for r in larger {
+            let (tr, classical, trial) = time_rung(cfg, fit, sh, r, 1, t_analysis)?;
+            let affords = trial.steps_in_budget >= MIN_STEPS;
+            trials.push(trial);
             if affords {
-                trials.last_mut().expect("pushed").chosen = true;
-                return Ok((ts, cs, trials));
+                return with_subsamples(cfg, fit, sh, r, t_analysis, (tr, classical), trials);
             }
         }
-        trials
-            .iter_mut()
-            .rev()
-            .find(|t| t.supersample == 1)
-            .expect("pushed")
-            .chosen = true;
-        return Ok((tr, classical, trials));
+        return with_subsamples(
+            cfg,
+            fit,
+            sh,
+            smallest,
+            t_analysis,
+            (small_tr, small_classical),
+            trials,
+        );
     }
-    unreachable!("the last rung is always chosen")
+    trials[0].chosen = true;
+    Ok((small_tr, small_classical, trials))
+}
+
+/// Rung `r` chosen on its merit (its one-sample trainer in `one`, its trial the last of
+/// `trials`): timed again with `cfg.supersample` subsamples, which it keeps where it still
+/// affords [`SUPERSAMPLE_MIN_STEPS`].
+fn with_subsamples(
+    cfg: &TrainConfig,
+    fit: &[View],
+    sh: bool,
+    r: &Rung,
+    t_analysis: Instant,
+    one: (Trainer, dnr_runtime::texture::Pyramid),
+    mut trials: Vec<RungTrial>,
+) -> Result<(Trainer, dnr_runtime::texture::Pyramid, Vec<RungTrial>), TrainError> {
+    if cfg.supersample > 1 {
+        let (ts, cs, t2) = time_rung(cfg, fit, sh, r, cfg.supersample, t_analysis)?;
+        let affords = t2.steps_in_budget >= SUPERSAMPLE_MIN_STEPS;
+        trials.push(t2);
+        if affords {
+            trials.last_mut().expect("pushed").chosen = true;
+            return Ok((ts, cs, trials));
+        }
+    }
+    trials
+        .iter_mut()
+        .find(|t| t.name == r.name && t.supersample == 1)
+        .expect("timed at one sample")
+        .chosen = true;
+    Ok((one.0, one.1, trials))
 }
 
 /// Steps the chosen rung must still afford with its subsamples to keep them. Below
