@@ -367,7 +367,6 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             phases.train_after_pruning,
         ));
     }
-    decisions.push(schedule_decision(&tr.cfg.schedule, state.reanneal.as_ref()));
     let report = AutoReport {
         budget,
         validation_views: loaded.val_names(),
@@ -597,48 +596,6 @@ fn train_to_end(
     state.current_val = None;
     let after = train_phase(tr, state, 1.0, loaded, progress)?;
     Ok((before + after, choice))
-}
-
-/// The report line of the learning-rate schedule and of the re-anneal when validation
-/// stalled ([`train::run::stalled`]).
-fn schedule_decision(
-    sched: &train::schedule::Schedule,
-    reanneal: Option<&train::run::Reanneal>,
-) -> Decision {
-    let plan = format!(
-        "{:?} from 1 to {} of the base rates over the budget after a {:.0}% warm-up",
-        sched.shape,
-        sched.floor,
-        100.0 * sched.warmup
-    )
-    .to_lowercase();
-    let rule = format!(
-        "a run re-anneals once when no validation check has gained for {:.0}% of the budget, after {:.0}% of it and with {:.0}% left",
-        100.0 * train::run::REANNEAL_PATIENCE,
-        100.0 * train::run::REANNEAL_AFTER,
-        100.0 * train::run::REANNEAL_MIN_LEFT
-    );
-    match reanneal {
-        None => Decision::plain("learning-rate schedule", plan, format!("{rule}; validation did not stall")),
-        Some(r) => Decision::plain(
-            "learning-rate schedule",
-            format!(
-                "{plan}; re-annealed at {:.0}% from the state of {:.0}%",
-                100.0 * r.at,
-                100.0 * r.from
-            ),
-            format!(
-                "{rule}: the best check was {:.2} dB at {:.0}% (step {}), the check at {:.0}% (step {}) {:.2} dB; training went back to that state and replayed the schedule from {:.0}% over the rest of the budget",
-                r.val_db,
-                100.0 * r.from,
-                r.from_step,
-                100.0 * r.at,
-                r.at_step,
-                r.stalled_db,
-                100.0 * r.from
-            ),
-        ),
-    }
 }
 
 /// Validation renders pruning may take: [`PRUNE_SHARE`] of the budget at `render_secs` each

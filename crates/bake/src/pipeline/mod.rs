@@ -123,8 +123,6 @@ struct Report<'a, A: Serialize> {
     ema_checks: &'a [(u64, f64)],
     /// Divergences the training loop recovered from (rollback, halved learning rates).
     recoveries: &'a [Recovery],
-    /// The re-anneal, when validation stalled (`train::run::stalled`): `null` when none.
-    reanneal: Option<crate::train::run::Reanneal>,
     /// What loading found and did: timings, UVs, the alignment check.
     load: &'a crate::capture::LoadReport,
     /// `--preset auto`: what was measured and decided.
@@ -576,7 +574,6 @@ pub fn finish<A: Serialize>(
             validation_checks: &state.checks,
             ema_checks: &state.ema_checks,
             recoveries: &state.recoveries,
-            reanneal: state.reanneal,
             load: &loaded.load,
             auto: outcome.auto,
             storage: &storage_report,

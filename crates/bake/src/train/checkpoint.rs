@@ -75,10 +75,6 @@ pub struct Header {
     /// Recoveries from divergence so far, as JSON (absent in older checkpoints).
     #[serde(default)]
     pub recoveries: serde_json::Value,
-    /// The run's re-anneal when it made one, as JSON (absent in older checkpoints and in runs
-    /// without one).
-    #[serde(default)]
-    pub reanneal: serde_json::Value,
 }
 
 /// A checkpoint in memory.
@@ -249,7 +245,6 @@ mod tests {
                 arrays: vec![],
                 adam_steps: vec![],
                 recoveries: serde_json::json!([]),
-                reanneal: serde_json::Value::Null,
             },
             arrays: vec![],
         };

@@ -1155,7 +1155,6 @@ impl Trainer {
                 arrays: Vec::new(),
                 adam_steps: Vec::new(),
                 recoveries: serde_json::to_value(&state.recoveries).unwrap_or_default(),
-                reanneal: serde_json::to_value(state.reanneal).unwrap_or_default(),
             },
             arrays: Vec::new(),
         };
@@ -1247,18 +1246,12 @@ impl Trainer {
         } else {
             serde_json::from_value(c.header.recoveries.clone()).map_err(|e| bad(e.to_string()))?
         };
-        let reanneal = if c.header.reanneal.is_null() {
-            None
-        } else {
-            serde_json::from_value(c.header.reanneal.clone()).map_err(|e| bad(e.to_string()))?
-        };
         Ok(RunState {
             train_secs: c.header.train_secs,
             next_eval: c.header.next_eval,
             next_check: c.header.next_check,
             records,
             recoveries,
-            reanneal,
             ..RunState::default()
         })
     }

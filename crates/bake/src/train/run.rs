@@ -12,7 +12,6 @@
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::Instant;
 
 use serde::Serialize;
@@ -38,81 +37,6 @@ pub struct Recovery {
     pub lr_net: f32,
     /// Texture learning rate from then on (before the schedule's factor).
     pub lr_tex: f32,
-}
-
-/// A re-anneal (see [`run`]): validation had not gained for [`REANNEAL_PATIENCE`] of the
-/// run, so the trainer went back to the run's best validated state and the schedule from
-/// that state's progress to its end was replayed, compressed, over what was left.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "camelCase")]
-pub struct Reanneal {
-    /// Progress when validation was found stalled (and the state rolled back).
-    pub at: f64,
-    /// Progress of the best state it went back to.
-    pub from: f64,
-    /// Steps taken when it fired.
-    pub at_step: u64,
-    /// Step of the state it went back to.
-    pub from_step: u64,
-    /// Validation PSNR of that state (dB).
-    pub val_db: f64,
-    /// Validation PSNR of the last check before it (dB).
-    pub stalled_db: f64,
-}
-
-impl Reanneal {
-    /// The schedule's progress at run progress `p`: up to `at` the run's own, from `at` on
-    /// the schedule from `from` to its end, stretched over the rest of the run.
-    pub fn schedule_progress(&self, p: f64) -> f64 {
-        if p < self.at || self.at >= 1.0 {
-            return p;
-        }
-        self.from + (p - self.at) * (1.0 - self.from) / (1.0 - self.at)
-    }
-}
-
-/// Progress from which a run whose validation has stalled may re-anneal (before it, the
-/// rates are high and checks scatter).
-pub const REANNEAL_AFTER: f64 = 0.5;
-/// Progress without a new best validation figure that counts as a stall.
-pub const REANNEAL_PATIENCE: f64 = 0.2;
-/// Progress that must be left to replay the annealing in.
-pub const REANNEAL_MIN_LEFT: f64 = 0.2;
-
-/// Whether a run at progress `p`, whose best validated state is at `best_at`, has stalled
-/// and has room to re-anneal: at least [`REANNEAL_AFTER`], [`REANNEAL_PATIENCE`] past its
-/// best, and [`REANNEAL_MIN_LEFT`] before the end. Why: on the development set's coarse thin
-/// capture, 600 s bakes stopped gaining on validation at about 55% of the budget and lost
-/// from 80% on, while the 300 s bakes, annealed by then, scored 0.2 to 0.3 dB higher on the
-/// test views; on every other capture the best check was never that old (docs/benchmarks.md).
-pub fn stalled(p: f64, best_at: f64) -> bool {
-    const EPS: f64 = 1e-9;
-    p >= REANNEAL_AFTER - EPS
-        && p - best_at >= REANNEAL_PATIENCE - EPS
-        && 1.0 - p >= REANNEAL_MIN_LEFT - EPS
-}
-
-/// The best validated state of a run so far (across calls), with where it was.
-#[derive(Clone, Debug)]
-pub struct RunBest {
-    /// The state.
-    pub ckpt: Arc<Checkpoint>,
-    /// Its validation PSNR (dB).
-    pub val: f64,
-    /// Its progress.
-    pub progress: f64,
-    /// The model's shape it belongs to ([`shape_of`]).
-    shape: (usize, Vec<usize>, bool),
-}
-
-/// What a snapshot must share with the trainer to stand for it: levels, channels held at
-/// zero, quantisation-aware training on or off (auto changes them between calls).
-fn shape_of(t: &Trainer) -> (usize, Vec<usize>, bool) {
-    (
-        t.pyr.levels.len(),
-        t.zero_channels().to_vec(),
-        t.qat().is_some(),
-    )
 }
 
 /// Progress of a run that a checkpoint carries besides the trainer.
@@ -144,11 +68,6 @@ pub struct RunState {
     /// that changes the trainer between calls (a level removed, pruning, quantisation) sets
     /// it to what it measured, or clears it.
     pub current_val: Option<f64>,
-    /// The run's best validated state since the model's shape last changed: what a stalled
-    /// run re-anneals from (not written to checkpoint files).
-    pub run_best: Option<RunBest>,
-    /// The re-anneal, once the run has made it (at most one per run).
-    pub reanneal: Option<Reanneal>,
 }
 
 impl Default for RunState {
@@ -165,8 +84,6 @@ impl Default for RunState {
             val_checks: 0,
             val_check_secs: 0.0,
             current_val: None,
-            run_best: None,
-            reanneal: None,
         }
     }
 }
@@ -316,13 +233,7 @@ pub fn run(
     if state.next_check <= 0.0 {
         state.next_check = 1.0 / n_checks;
     }
-    let mut best: (Arc<Checkpoint>, f64) = (Arc::new(trainer.checkpoint(state)), start_val);
-    // The run-wide best survives calls while the model keeps its shape.
-    let shape = shape_of(trainer);
-    if state.run_best.as_ref().is_some_and(|b| b.shape != shape) {
-        state.run_best = None;
-    }
-    note_best(state, &best, progress(trainer, state), &shape);
+    let mut best: (Checkpoint, f64) = (trainer.checkpoint(state), start_val);
     let recover = |trainer: &mut Trainer,
                    state: &mut RunState,
                    good: &Checkpoint,
@@ -361,8 +272,7 @@ pub fn run(
     };
     while trainer.step < steps && progress(trainer, state) < until {
         let p = progress(trainer, state);
-        let q = state.reanneal.map_or(p, |r| r.schedule_progress(p));
-        trainer.set_lr_scale(sched.factor(q) as f32);
+        trainer.set_lr_scale(sched.factor(p) as f32);
         let t0 = Instant::now();
         let loss = trainer.step(train)?;
         state.train_secs += t0.elapsed().as_secs_f64();
@@ -386,16 +296,9 @@ pub fn run(
                     )?;
                     continue;
                 } else if v >= best.1 {
-                    best = (Arc::new(trainer.checkpoint(state)), v);
+                    best = (trainer.checkpoint(state), v);
                 }
                 check_ema(trainer, state, val, &mut best)?;
-                note_best(state, &best, p, &shape);
-                if sched.shape != schedule::Shape::Constant && state.reanneal.is_none() {
-                    if let Some(b) = state.run_best.clone().filter(|b| stalled(p, b.progress)) {
-                        reanneal(trainer, state, &b, p, v)?;
-                        best = (b.ckpt, b.val);
-                    }
-                }
             }
         }
         if trainer.cfg.eval_every > 0.0 && state.train_secs >= state.next_eval && !test.is_empty() {
@@ -430,7 +333,7 @@ pub fn run(
             let v = check(trainer, state, val)?;
             // The average competes with the final state, not with an older best.
             if v >= best.1 && trainer.ema_ready() {
-                best = (Arc::new(trainer.checkpoint(state)), v);
+                best = (trainer.checkpoint(state), v);
             }
             check_ema(trainer, state, val, &mut best)?;
             v
@@ -462,55 +365,6 @@ pub fn run(
         on_record(&rec);
         state.records.push(rec);
     }
-    Ok(())
-}
-
-/// Makes `best` the run-wide best (at progress `p`) when it beats it.
-fn note_best(
-    state: &mut RunState,
-    best: &(Arc<Checkpoint>, f64),
-    p: f64,
-    shape: &(usize, Vec<usize>, bool),
-) {
-    if best.1.is_finite() && state.run_best.as_ref().is_none_or(|b| best.1 > b.val) {
-        state.run_best = Some(RunBest {
-            ckpt: Arc::clone(&best.0),
-            val: best.1,
-            progress: p,
-            shape: shape.clone(),
-        });
-    }
-}
-
-/// Goes back to the run's best state `b` at progress `p` (its time and the steps taken go
-/// on) and replays the schedule from its progress over the rest of the run.
-fn reanneal(
-    trainer: &mut Trainer,
-    state: &mut RunState,
-    b: &RunBest,
-    p: f64,
-    stalled_db: f64,
-) -> Result<(), TrainError> {
-    let at_step = trainer.step;
-    let keep = keep_progress(state);
-    trainer.restore(&b.ckpt, Path::new("(in-memory snapshot)"))?;
-    put_progress(state, keep);
-    let from_step = trainer.step;
-    trainer.step = at_step;
-    state.last_val = b.val;
-    state.reanneal = Some(Reanneal {
-        at: p,
-        from: b.progress,
-        at_step,
-        from_step,
-        val_db: b.val,
-        stalled_db,
-    });
-    eprintln!(
-        "dnr-bake: validation has not gained since {:.0}% of the run ({:.2} dB, now {stalled_db:.2} dB): went back to that state and anneals again from there",
-        100.0 * b.progress,
-        b.val
-    );
     Ok(())
 }
 
@@ -555,7 +409,7 @@ fn check_ema(
     trainer: &mut Trainer,
     state: &mut RunState,
     val: &[View],
-    best: &mut (Arc<Checkpoint>, f64),
+    best: &mut (Checkpoint, f64),
 ) -> Result<(), TrainError> {
     if !trainer.swap_ema() {
         return Ok(());
@@ -564,7 +418,7 @@ fn check_ema(
     let v = mean_psnr(trainer, val);
     if let Ok(v) = v {
         if v.is_finite() && v > best.1 {
-            *best = (Arc::new(trainer.checkpoint(state)), v);
+            *best = (trainer.checkpoint(state), v);
         }
         state.ema_checks.push((trainer.step, v));
     }
@@ -590,28 +444,6 @@ fn record(trainer: &mut Trainer, state: &RunState, test: &[View]) -> Result<Reco
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_reanneal_replays_the_schedule_from_its_best_state_over_what_is_left() {
-        let r = Reanneal {
-            at: 0.7,
-            from: 0.5,
-            at_step: 700,
-            from_step: 500,
-            val_db: 30.0,
-            stalled_db: 29.5,
-        };
-        assert_eq!(r.schedule_progress(0.3), 0.3);
-        assert!((r.schedule_progress(0.7) - 0.5).abs() < 1e-12);
-        assert!((r.schedule_progress(0.85) - 0.75).abs() < 1e-12);
-        assert!((r.schedule_progress(1.0) - 1.0).abs() < 1e-12);
-        // Stalled: past half the run, a fifth of it since the best, a fifth of it left.
-        assert!(stalled(0.7, 0.5));
-        assert!(stalled(0.5, 0.3));
-        assert!(!stalled(0.45, 0.2), "too early");
-        assert!(!stalled(0.7, 0.55), "gained too recently");
-        assert!(!stalled(0.85, 0.6), "too little left");
-    }
 
     #[test]
     fn checks_take_at_most_their_share_of_a_budget() {
