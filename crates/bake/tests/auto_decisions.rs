@@ -1,5 +1,5 @@
 //! `--preset auto`'s measurements on small generated captures: the view-dependence test,
-//! the untouched-texel mask, and channel stripping at export.
+//! the untouched-texel mask, channel stripping at export, and the bound on pruning's renders.
 
 mod capture_common;
 
@@ -160,4 +160,43 @@ fn prunable_channels_spare_colour_and_sh_band() {
         vec![12, 13, 14, 15]
     );
     assert_eq!(prune::prunable_channels(6, None), vec![3, 4, 5]);
+}
+
+#[test]
+fn pruning_tries_only_what_its_renders_afford_largest_savings_first() {
+    let (_d, _cap, v) = views_of(0.3);
+    let (fit, val) = (&v[1..], &v[..1]);
+    let mut t = Trainer::new(small_cfg(), fit).unwrap();
+    for _ in 0..3 {
+        t.step(fit).unwrap();
+    }
+    let levels = t.pyr.levels.len();
+    let candidates = levels + prune::prunable_channels(t.pyr.channels, t.sh_layer()).len();
+    assert!(
+        levels > 1 && candidates > 3,
+        "the scenario needs several candidates"
+    );
+    // Without a known base, one render is the base and one is kept for the joint check.
+    let p = prune::prune(&mut t, val, None, 0.05, 4).unwrap();
+    let tried: Vec<&str> = p.trials.iter().map(|t| t.item.as_str()).collect();
+    assert_eq!(tried, ["level 0", "level 1"], "finest levels first");
+    assert_eq!(p.untried.len(), candidates - 2, "{:?}", p.untried);
+    assert_eq!(p.renders_afforded, 4);
+    // With the base known, no render for it; too few renders try nothing and change nothing
+    // (the first pass may have removed some: count what is left).
+    let left = |t: &Trainer| {
+        let l = t.pyr.levels.len();
+        usize::from(l > 1) * l
+            + prune::prunable_channels(t.pyr.channels, t.sh_layer())
+                .iter()
+                .filter(|c| !t.zero_channels().contains(c))
+                .count()
+    };
+    let before = t.pyr.clone();
+    let p = prune::prune(&mut t, val, Some(20.0), 0.05, 1).unwrap();
+    assert!(p.trials.is_empty() && p.levels.is_empty() && p.channels.is_empty());
+    assert_eq!(p.untried.len(), left(&t));
+    assert_eq!(t.pyr.levels.len(), before.levels.len());
+    let p = prune::prune(&mut t, val, Some(20.0), 0.05, 3).unwrap();
+    assert_eq!(p.trials.len(), 2);
 }
