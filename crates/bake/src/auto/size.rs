@@ -119,7 +119,7 @@ pub fn choose(
     Ok((small_tr, small_classical, trials))
 }
 
-/// Rung `r` chosen on its merit (its one-sample trainer in `one`, its trial the last of
+/// Rung `r` chosen on its merit (its one-sample trainer in `one`, its one-sample trial among
 /// `trials`): timed again with `cfg.supersample` subsamples, which it keeps where it still
 /// affords [`SUPERSAMPLE_MIN_STEPS`].
 fn with_subsamples(
