@@ -219,6 +219,13 @@ struct Args {
     /// it).
     #[arg(long, value_name = "PATH")]
     write_f16: Option<PathBuf>,
+    /// With --preset auto: the shortest budget cycle, in seconds. A --time-budget of at least
+    /// twice this first bakes half of it, whole, then runs the schedule again from there
+    /// and keeps the result only when it beats that half-budget bake on the validation
+    /// views, so a longer budget never ends worse on them. Set it above half the budget for
+    /// one cycle.
+    #[arg(long, value_name = "SECONDS", default_value_t = dnr_bake::auto::cycles::MIN_CYCLE_SECS)]
+    min_cycle: f64,
     /// Print the final figures as JSON on stdout.
     #[arg(long)]
     json: bool,
@@ -357,6 +364,12 @@ fn run(a: Args) -> Result<()> {
             a.storage_bound_db
         );
     }
+    if !(a.min_cycle.is_finite() && a.min_cycle > 0.0) {
+        anyhow::bail!(
+            "--min-cycle must be a finite number of seconds above 0, not {}",
+            a.min_cycle
+        );
+    }
     let cfg = config(&a);
     cfg.schedule
         .validate()
@@ -381,6 +394,7 @@ fn run(a: Args) -> Result<()> {
         storage: a.storage,
         storage_bound_db: a.storage_bound_db,
         write_f16: a.write_f16.clone(),
+        min_cycle_secs: a.min_cycle,
         input: dnr_bake::capture::InputOptions {
             max_side: a.max_side,
             uv: a.uv,

@@ -435,6 +435,50 @@ fn held_out_error_never_grows_with_the_default_presets_time_budget() {
 }
 
 #[test]
+fn a_long_budget_continues_the_half_budget_bake_and_never_ends_worse_on_validation() {
+    let _turn = timed();
+    let dir = tempfile::tempdir().unwrap();
+    // Cycles end at 6, 12 and 24 s; quantised storage runs the fine-tune through its
+    // rounding in every cycle.
+    let (out, r) = bake_auto(
+        &duck_tiny(),
+        "24",
+        dir.path(),
+        &["--min-cycle", "6", "--storage", "q8"],
+    );
+    let v = dnr_format::validate_file(&out, &dnr_format::Limits::default()).unwrap();
+    assert!(v.issues.is_empty(), "{:#?}", v.issues);
+    let a = &r["auto"];
+    let cycles = a["cycles"].as_array().expect("the cycles");
+    let f = |c: &serde_json::Value, k: &str| c[k].as_f64().unwrap();
+    let ends: Vec<(f64, f64)> = cycles
+        .iter()
+        .map(|c| (f(c, "fromBudget"), f(c, "toBudget")))
+        .collect();
+    assert_eq!(ends, vec![(6.0, 12.0), (12.0, 24.0)], "{a}");
+    // Each cycle starts from the state the one before wrote, which is its start or its own
+    // best, whichever validation prefers: so validation never falls from cycle to cycle.
+    let mut written = f64::NEG_INFINITY;
+    for c in cycles {
+        assert!(c["steps"].as_u64().unwrap() > 0, "{c}");
+        let (start, end) = (f(c, "startPsnr"), f(c, "endPsnr"));
+        if written.is_finite() {
+            assert!((start - written).abs() < 1e-9, "{c}: wrote {written}");
+        }
+        assert_eq!(c["kept"].as_bool(), Some(end > start), "{c}");
+        written = start.max(end);
+    }
+    assert!((f(a, "finalValPsnr") - written).abs() < 1e-9, "{a}");
+    let lines = a["decisions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|d| d["what"] == "budget cycle")
+        .count();
+    assert_eq!(lines, 2, "{a}");
+}
+
+#[test]
 fn auto_preset_with_auto_storage_fine_tunes_through_the_rounding_and_keeps_the_bound() {
     let _turn = timed();
     let dir = tempfile::tempdir().unwrap();

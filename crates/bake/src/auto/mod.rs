@@ -30,7 +30,11 @@
 //!    its floor, and the best validated state is what gets written. With quantised storage
 //!    (`--storage q8|q4|auto`) the last [`train::quantise::QAT_FRACTION`] of the budget trains
 //!    through the rounding the asset will store ([`train::quantise`]).
+//! 7. A budget of at least twice [`cycles::MIN_CYCLE_SECS`] runs 1-6 on half of it, then
+//!    continues from that bake's state with the schedule run again ([`cycles`]), and keeps
+//!    the continuation only when it beats that state on the validation views.
 
+pub mod cycles;
 pub mod footprint;
 pub mod prune;
 pub mod resolution;
@@ -148,6 +152,8 @@ pub struct AutoReport {
     pub pruned_ms: f64,
     /// Validation PSNR of the written state.
     pub final_val_psnr: f64,
+    /// The budget cycles after the first ([`cycles`]; empty for a budget of one cycle).
+    pub cycles: Vec<cycles::Cycle>,
     /// Seconds by phase.
     pub seconds: Phases,
     /// Every decision.
@@ -196,6 +202,11 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     } else {
         AUTO_DEFAULT_BUDGET
     };
+    // A long budget bakes half of it, then continues ([`cycles`]).
+    let cycle_ends = cycles::budgets(budget, opts.min_cycle_secs);
+    let (first_budget, later) = cycle_ends
+        .split_first()
+        .map_or((budget, &[][..]), |(f, l)| (*f, l));
     // 1. Validation views (held out by the pipeline).
     let mut loaded = pipeline::load(cfg, opts)?;
     let t_analysis = Instant::now();
@@ -205,7 +216,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     let vd = decide_view_dependence(loaded.fit(), &mut decisions);
     let fp = footprint::measure(loaded.fit());
     let cfg = TrainConfig {
-        time_budget: budget,
+        time_budget: first_budget,
         supersample: loaded.supersample,
         sh_degree: vd.degree,
         channels: channels_for(cfg.channels, &vd),
@@ -246,7 +257,13 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     };
 
     // 5. Train to the pruning point.
-    let progress = Progress::new(opts.progress, &tr.cfg);
+    let progress = Progress::new(
+        opts.progress,
+        &TrainConfig {
+            time_budget: budget,
+            ..tr.cfg.clone()
+        },
+    );
     progress.println(&format!(
         "dnr-bake auto: SH {}, {}, {} validation views",
         if vd.view_dependent {
@@ -283,14 +300,18 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
     // Quantised storage: the last part of training runs through the rounding it will get.
     let mut qat = opts.storage.qat_target(tr.pyr.levels.len());
     let mut storage_choice = None;
+    let mut cycle_runs = Vec::new();
     // A network that does not beat the classical texture yet may still be learning (few
     // steps on a slow or loaded machine): it trains on to the end, unpruned, and is compared
     // again there; only then may the texture alone win.
     let behind = trained_psnr - classical_psnr < PRUNE_DB;
     let end_psnr = if behind {
-        let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
-        phases.train_after_pruning = secs;
-        storage_choice = choice;
+        let t = train_to_end(
+            &mut tr, &mut state, &mut qat, later, opts, &loaded, &progress,
+        )?;
+        phases.train_after_pruning = t.secs;
+        storage_choice = t.storage_choice;
+        cycle_runs = t.cycles;
         train::run::current_psnr(&tr, &mut state, loaded.val())?
     } else {
         trained_psnr
@@ -341,9 +362,12 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         )?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
-        let (secs, choice) = train_to_end(&mut tr, &mut state, &mut qat, opts, &loaded, &progress)?;
-        phases.train_after_pruning = secs;
-        storage_choice = choice;
+        let t = train_to_end(
+            &mut tr, &mut state, &mut qat, later, opts, &loaded, &progress,
+        )?;
+        phases.train_after_pruning = t.secs;
+        storage_choice = t.storage_choice;
+        cycle_runs = t.cycles;
         let (p, n) = prune::strip_channels(&tr.pyr, &tr.export_net(), &pruning.channels);
         (p, n, tr.sh_layer(), tr.out_ch, Some(pruning))
     };
@@ -367,6 +391,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
             phases.train_after_pruning,
         ));
     }
+    decisions.extend(cycle_runs.iter().map(cycle_decision));
     let report = AutoReport {
         budget,
         validation_views: loaded.val_names(),
@@ -385,6 +410,7 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         pruned_bytes,
         pruned_ms,
         final_val_psnr,
+        cycles: cycle_runs,
         seconds: phases,
         decisions,
     };
@@ -565,10 +591,44 @@ pub fn train_phase(
 
 /// [`train_phase`] to the end of the budget; with quantised storage (`qat`), the part from
 /// [`train::quantise::QAT_START`] on reads the texture and the weights rounded as they will be
-/// stored. Returns the seconds trained.
+/// stored. Then the later budget cycles, `later` ([`cycles::continue_to`]).
 /// With `--storage auto`, the storage is chosen at that point, on the unquantised state, and
 /// the fine-tune imitates what was chosen (`qat` is updated, the choice returned).
 fn train_to_end(
+    tr: &mut Trainer,
+    state: &mut RunState,
+    qat: &mut Option<train::quantise::QatTarget>,
+    later: &[f64],
+    opts: &BakeOptions,
+    loaded: &Loaded,
+    progress: &Progress,
+) -> Result<ToEnd, BakeError> {
+    let (secs, storage_choice) = train_first_cycle(tr, state, qat, opts, loaded, progress)?;
+    let mut to_end = ToEnd {
+        secs,
+        storage_choice,
+        cycles: Vec::new(),
+    };
+    for &b in later {
+        let c = cycles::continue_to(tr, state, qat, b, loaded, progress)?;
+        to_end.secs += c.seconds;
+        to_end.cycles.push(c);
+    }
+    Ok(to_end)
+}
+
+/// What [`train_to_end`] trained.
+struct ToEnd {
+    /// Seconds trained.
+    secs: f64,
+    /// The storage `--storage auto` chose.
+    storage_choice: Option<crate::storage::AutoChoice>,
+    /// The cycles after the first.
+    cycles: Vec<cycles::Cycle>,
+}
+
+/// [`train_to_end`]'s first cycle: returns the seconds trained and the storage chosen.
+fn train_first_cycle(
     tr: &mut Trainer,
     state: &mut RunState,
     qat: &mut Option<train::quantise::QatTarget>,
@@ -624,6 +684,26 @@ fn checks_decision(state: &RunState, budget: f64) -> Decision {
             train::run::MIN_VAL_CHECKS
         ),
     )
+}
+
+/// The report line of a budget cycle ([`cycles`]).
+fn cycle_decision(c: &cycles::Cycle) -> Decision {
+    let (from, to) = (c.from_budget, c.to_budget);
+    Decision {
+        cost_db: c.kept.then_some(c.start_psnr - c.end_psnr),
+        ..Decision::plain(
+            "budget cycle",
+            if c.kept {
+                format!("the continuation from {from:.0} s to {to:.0} s")
+            } else {
+                format!("the {from:.0} s bake (the continuation to {to:.0} s did not beat it)")
+            },
+            format!(
+                "the bake of {from:.0} s reached {:.2} dB on the validation views; the schedule ran again from its state for {:.0} s ({} steps): its best check {:.2} dB, the state it hands back {:.2} dB",
+                c.start_psnr, c.seconds, c.steps, c.best_check_psnr, c.end_psnr
+            ),
+        )
+    }
 }
 
 /// The report line of the texture-resolution trials.

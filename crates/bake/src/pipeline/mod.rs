@@ -54,6 +54,9 @@ pub struct BakeOptions {
     pub write_f16: Option<PathBuf>,
     /// Capture loading choices (working size, UVs, mesh placement, alignment check).
     pub input: crate::capture::InputOptions,
+    /// `--min-cycle`: with `--preset auto`, the shortest budget cycle (a budget of at least
+    /// twice this bakes half of it first; see `crate::auto::cycles`).
+    pub min_cycle_secs: f64,
 }
 
 impl BakeOptions {
@@ -75,6 +78,7 @@ impl BakeOptions {
             storage_bound_db: crate::storage::DEFAULT_BOUND_DB,
             write_f16: None,
             input: Default::default(),
+            min_cycle_secs: crate::auto::cycles::MIN_CYCLE_SECS,
         }
     }
 }

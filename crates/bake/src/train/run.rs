@@ -68,6 +68,10 @@ pub struct RunState {
     /// that changes the trainer between calls (a level removed, pruning, quantisation) sets
     /// it to what it measured, or clears it.
     pub current_val: Option<f64>,
+    /// Progress (0..1) at which the current cycle began: 0 for one cycle over the whole run;
+    /// auto's budget cycles continue a finished bake, warming up again into the whole run's
+    /// schedule from there ([`schedule::Schedule::factor_continued`]).
+    pub cycle_start: f64,
 }
 
 impl Default for RunState {
@@ -84,6 +88,7 @@ impl Default for RunState {
             val_checks: 0,
             val_check_secs: 0.0,
             current_val: None,
+            cycle_start: 0.0,
         }
     }
 }
@@ -166,7 +171,8 @@ pub fn next_check_after(p: f64, n: f64) -> f64 {
 
 /// Trains from the state's progress up to progress `until` (1 = the end of the run: its
 /// time budget or step limit, whichever comes first; auto stops earlier to prune, then calls
-/// again). The learning rates follow the configuration's schedule over the whole run.
+/// again). The learning rates follow the configuration's schedule over the whole run (warmed
+/// up again from [`RunState::cycle_start`] in a continued run).
 ///
 /// - Every `1 / n` of progress (and at the end) the validation views are rendered, `n` from
 ///   [`val_checks`] (decided by the first call from the time its first render takes).
@@ -272,7 +278,7 @@ pub fn run(
     };
     while trainer.step < steps && progress(trainer, state) < until {
         let p = progress(trainer, state);
-        trainer.set_lr_scale(sched.factor(p) as f32);
+        trainer.set_lr_scale(sched.factor_continued(p, state.cycle_start) as f32);
         let t0 = Instant::now();
         let loss = trainer.step(train)?;
         state.train_secs += t0.elapsed().as_secs_f64();
@@ -343,12 +349,8 @@ pub fn run(
         let p = progress(trainer, state);
         state.next_check = state.next_check.max(next_check_after(p, n_checks));
         if at_end && best.1.is_finite() && worse {
-            let keep = keep_progress(state);
             let last = trainer.step;
-            trainer.restore(&best.0, Path::new("(in-memory snapshot)"))?;
-            put_progress(state, keep);
-            state.last_val = best.1;
-            state.current_val = Some(best.1);
+            go_back(trainer, state, &best.0, best.1)?;
             eprintln!(
                 "dnr-bake: the state at step {last} ({v:.2} dB on validation) is worse than the one at step {} ({:.2} dB): keeping that",
                 trainer.step, best.1
@@ -365,6 +367,22 @@ pub fn run(
         on_record(&rec);
         state.records.push(rec);
     }
+    Ok(())
+}
+
+/// Restores an in-memory snapshot of the trainer whose validation PSNR was `val`, keeping
+/// the run's progress (time moves on, records stay): the state to be written is that one.
+pub fn go_back(
+    trainer: &mut Trainer,
+    state: &mut RunState,
+    snapshot: &Checkpoint,
+    val: f64,
+) -> Result<(), TrainError> {
+    let keep = keep_progress(state);
+    trainer.restore(snapshot, Path::new("(in-memory snapshot)"))?;
+    put_progress(state, keep);
+    state.last_val = val;
+    state.current_val = Some(val).filter(|v| v.is_finite());
     Ok(())
 }
 
