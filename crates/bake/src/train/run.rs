@@ -68,9 +68,9 @@ pub struct RunState {
     /// that changes the trainer between calls (a level removed, pruning, quantisation) sets
     /// it to what it measured, or clears it.
     pub current_val: Option<f64>,
-    /// Progress (0..1) at which the current cycle began: 0 for one cycle over the whole run;
-    /// auto's budget cycles continue a finished bake, warming up again into the whole run's
-    /// schedule from there ([`schedule::Schedule::factor_continued`]).
+    /// Progress (0..1) at which the current schedule cycle began: 0 for one cycle over the
+    /// whole run; auto's budget cycles continue a finished bake and run the schedule again
+    /// from there ([`schedule::within_cycle`]).
     pub cycle_start: f64,
 }
 
@@ -171,8 +171,8 @@ pub fn next_check_after(p: f64, n: f64) -> f64 {
 
 /// Trains from the state's progress up to progress `until` (1 = the end of the run: its
 /// time budget or step limit, whichever comes first; auto stops earlier to prune, then calls
-/// again). The learning rates follow the configuration's schedule over the whole run (warmed
-/// up again from [`RunState::cycle_start`] in a continued run).
+/// again). The learning rates follow the configuration's schedule over the whole run (over
+/// the current cycle, from [`RunState::cycle_start`], in a continued run).
 ///
 /// - Every `1 / n` of progress (and at the end) the validation views are rendered, `n` from
 ///   [`val_checks`] (decided by the first call from the time its first render takes).
@@ -278,7 +278,7 @@ pub fn run(
     };
     while trainer.step < steps && progress(trainer, state) < until {
         let p = progress(trainer, state);
-        trainer.set_lr_scale(sched.factor_continued(p, state.cycle_start) as f32);
+        trainer.set_lr_scale(sched.factor(schedule::within_cycle(p, state.cycle_start)) as f32);
         let t0 = Instant::now();
         let loss = trainer.step(train)?;
         state.train_secs += t0.elapsed().as_secs_f64();

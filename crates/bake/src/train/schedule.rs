@@ -95,25 +95,6 @@ impl Schedule {
         self.floor + (1.0 - self.floor) * decay
     }
 
-    /// The factor at progress `p` of a run continued from a finished cycle at progress
-    /// `start` (auto's budget cycles): the whole run's own factor at `p`, warmed up again
-    /// over the first `warmup` of the continuation (the finished cycle ended at the floor).
-    /// So a continuation is the longer run's own second part, from the shorter run's
-    /// annealed state. `start` 0 is [`Schedule::factor`].
-    pub fn factor_continued(&self, p: f64, start: f64) -> f64 {
-        let f = self.factor(p);
-        if !(start > 0.0 && start < 1.0) || self.shape == Shape::Constant {
-            return f;
-        }
-        let q = within_cycle(p, start);
-        if self.warmup > 0.0 && q < self.warmup {
-            let s = self.warmup_start;
-            f * (s + (1.0 - s) * q / self.warmup)
-        } else {
-            f
-        }
-    }
-
     /// Checks the fields are in range.
     pub fn validate(&self) -> Result<(), String> {
         let unit = |x: f64| x.is_finite() && (0.0..=1.0).contains(&x);
@@ -143,8 +124,9 @@ pub fn progress(seconds: f64, budget: f64, step: u64, steps: u64) -> f64 {
     by_time.max(by_steps).clamp(0.0, 1.0)
 }
 
-/// Progress within a cycle that began at run progress `start` (in [0, 1)), as a fraction of
-/// the rest of the run. `start` 0 is the whole run.
+/// Progress within a cycle that began at run progress `start` (in [0, 1)): a bake continued
+/// past the end of an earlier one (auto's budget cycles) runs the schedule again over the
+/// rest of the run, warm-up included. `start` 0 is the whole run.
 pub fn within_cycle(p: f64, start: f64) -> f64 {
     if start > 0.0 && start < 1.0 {
         ((p - start) / (1.0 - start)).clamp(0.0, 1.0)
@@ -200,23 +182,17 @@ mod tests {
     }
 
     #[test]
-    fn a_continuation_warms_up_into_the_whole_runs_schedule() {
+    fn a_cycle_runs_the_schedule_again_over_the_rest() {
         let s = Schedule::DEFAULT;
         assert_eq!(within_cycle(0.3, 0.0), 0.3);
+        assert_eq!(within_cycle(0.5, 0.5), 0.0);
         assert_eq!(within_cycle(0.75, 0.5), 0.5);
-        // Before its start it counts as the start.
+        assert_eq!(within_cycle(1.0, 0.5), 1.0);
+        // Warm-up at the cycle's start, the floor at the run's end.
+        assert!((s.factor(within_cycle(0.5, 0.5)) - s.warmup_start).abs() < 1e-12);
+        assert!((s.factor(within_cycle(1.0, 0.5)) - s.floor).abs() < 1e-12);
+        // Before its start (a rollback's progress) it counts as the start.
         assert_eq!(within_cycle(0.4, 0.5), 0.0);
-        // No continuation: the schedule itself.
-        assert_eq!(s.factor_continued(0.3, 0.0), s.factor(0.3));
-        // Warm-up from the schedule's start factor at the continuation's start ...
-        let f0 = s.factor_continued(0.5, 0.5);
-        assert!((f0 - s.warmup_start * s.factor(0.5)).abs() < 1e-12);
-        // ... to the whole run's factor after the warm-up, down to the floor at the end.
-        let after = 0.5 + 0.5 * s.warmup;
-        assert!((s.factor_continued(after, 0.5) - s.factor(after)).abs() < 1e-12);
-        assert_eq!(s.factor_continued(0.8, 0.5), s.factor(0.8));
-        assert!((s.factor_continued(1.0, 0.5) - s.floor).abs() < 1e-12);
-        assert_eq!(Schedule::CONSTANT.factor_continued(0.5, 0.5), 1.0);
     }
 
     #[test]
