@@ -299,19 +299,15 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
 
     // Quantised storage: the last part of training runs through the rounding it will get.
     let mut qat = opts.storage.qat_target(tr.pyr.levels.len());
-    let mut storage_choice = None;
-    let mut cycle_runs = Vec::new();
+    let mut to_end = None;
     // A network that does not beat the classical texture yet may still be learning (few
     // steps on a slow or loaded machine): it trains on to the end, unpruned, and is compared
     // again there; only then may the texture alone win.
     let behind = trained_psnr - classical_psnr < PRUNE_DB;
     let end_psnr = if behind {
-        let t = train_to_end(
+        to_end = Some(train_to_end(
             &mut tr, &mut state, &mut qat, later, opts, &loaded, &progress,
-        )?;
-        phases.train_after_pruning = t.secs;
-        storage_choice = t.storage_choice;
-        cycle_runs = t.cycles;
+        )?);
         train::run::current_psnr(&tr, &mut state, loaded.val())?
     } else {
         trained_psnr
@@ -362,16 +358,19 @@ pub fn bake(cfg: &TrainConfig, opts: &BakeOptions) -> Result<Summary, BakeError>
         )?;
         phases.prune = pruning.seconds;
         state.train_secs += pruning.seconds;
-        let t = train_to_end(
+        to_end = Some(train_to_end(
             &mut tr, &mut state, &mut qat, later, opts, &loaded, &progress,
-        )?;
-        phases.train_after_pruning = t.secs;
-        storage_choice = t.storage_choice;
-        cycle_runs = t.cycles;
+        )?);
         let (p, n) = prune::strip_channels(&tr.pyr, &tr.export_net(), &pruning.channels);
         (p, n, tr.sh_layer(), tr.out_ch, Some(pruning))
     };
     progress.finish();
+    let ToEnd {
+        secs,
+        storage_choice,
+        cycles: cycle_runs,
+    } = to_end.unwrap_or_default();
+    phases.train_after_pruning = secs;
     let final_val_psnr = state.last_val;
     let parts = ExportParts {
         pyr: &pyr,
@@ -618,6 +617,7 @@ fn train_to_end(
 }
 
 /// What [`train_to_end`] trained.
+#[derive(Default)]
 struct ToEnd {
     /// Seconds trained.
     secs: f64,
