@@ -112,7 +112,7 @@ pub fn continue_to(
         // The snapshot's rounding parameters are refitted from its own values.
         tr.set_qat(qat.clone());
         progress.println(&format!(
-            "dnr-bake auto: the continuation to {to_budget:.0} s reached {end_psnr:.2} dB on validation, the {from_budget:.0} s bake {start_psnr:.2} dB: keeping that"
+            "dnr-bake auto: the continuation to {to_budget:.0} s ends at {end_psnr:.2} dB on validation (best check {best_check_psnr:.2} dB), not above the {from_budget:.0} s bake's {start_psnr:.2} dB: keeping that bake"
         ));
     }
     Ok(Cycle {
